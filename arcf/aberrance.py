@@ -1,0 +1,56 @@
+"""The aberrance measure and the aberrance target (paper, Section 4.1, Eq. 2 and 3).
+
+Response maps here are *fftshifted* (peak near the centre), as the release keeps them:
+``M_curr = fftshift(response)``. ψ_{p,q} is a circular shift that makes two maps' peaks coincide.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.fft as sfft
+
+from .fourier import first_argmax_colmajor
+
+
+def peak_index(m: np.ndarray) -> tuple[int, int]:
+    """Integer peak of a map; ties go to the first in MATLAB's column-major order (release)."""
+    return first_argmax_colmajor(m)
+
+
+def shift_to(m: np.ndarray, peak_from: tuple[int, int], peak_to: tuple[int, int]) -> np.ndarray:
+    """M[ψ_{p,q}]: circularly shift ``m`` so its peak moves from ``peak_from`` to ``peak_to``."""
+    return np.roll(m, (peak_to[0] - peak_from[0], peak_to[1] - peak_from[1]), axis=(0, 1))
+
+
+def map_difference(m_prev_shifted: np.ndarray, m_curr: np.ndarray) -> tuple[float, float]:
+    """The response-map difference of Eq. 2 in two forms: (Euclidean/Frobenius, spectral).
+
+    The paper defines the Euclidean norm; the release stores MATLAB's ``norm`` of the matrix,
+    which is its largest singular value. The second form is what the published ``map_diff`` files
+    (and the paper's Table 2) contain.
+    """
+    d = (m_prev_shifted - m_curr).astype(np.float64)
+    frob = float(np.sqrt(np.sum(d * d)))
+    spectral = float(np.linalg.norm(d, 2)) if d.size else 0.0
+    return frob, spectral
+
+
+def paper_target(m_prev: np.ndarray, peak_prev: tuple[int, int]) -> np.ndarray:
+    """The paper's aberrance target as a spatial map in the label's layout (peak at the origin).
+
+    The regulariser of Eq. 3 compares the shifted previous map with the new filter's response on
+    the *training* sample, which is centred on the target, so its peak belongs where the label's
+    peak is: the origin. Returns the unshifted (origin-layout) map, ready for the DFT.
+    """
+    h, w = m_prev.shape
+    centred = shift_to(m_prev, peak_prev, (h // 2, w // 2))
+    return sfft.ifftshift(centred)
+
+
+def release_target(
+    m_prev: np.ndarray, peak_prev: tuple[int, int], peak_curr: tuple[int, int]
+) -> np.ndarray:
+    """The release's aberrance "spectrum": the spatial previous map, shifted onto the current
+    detection peak and fftshifted, used as if it were a DFT (reference notes: the domain error).
+    """
+    return sfft.fftshift(shift_to(m_prev, peak_prev, peak_curr))

@@ -1,0 +1,1 @@
+"""Hand-crafted features of the ARCF trackers: fHOG, grayscale and Color Names."""

@@ -1,0 +1,50 @@
+"""One feature block from a batch of patches: the channels a preset asks for, stacked."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .fhog import fhog
+from .pixel import ColorNames, gray_features
+
+CHANNELS = {"gray": 1, "fhog": 31, "cn": 10}
+
+
+class FeatureExtractor:
+    """Stacks the preset's features into one (N, D, H/cell, W/cell) float32 block.
+
+    Color Names are skipped on gray frames, as the release does (``useForGray = false``); the
+    table is only loaded when a colour frame actually needs it.
+    """
+
+    def __init__(self, kinds: tuple[str, ...], cell: int, colornames_path: str | None) -> None:
+        self.kinds = kinds
+        self.cell = cell
+        self._colornames_path = colornames_path
+        self._cn: ColorNames | None = None
+
+    def active(self, color: bool) -> tuple[str, ...]:
+        return tuple(k for k in self.kinds if color or k != "cn")
+
+    def channels(self, color: bool) -> int:
+        return sum(CHANNELS[k] for k in self.active(color))
+
+    def prepare(self, color: bool) -> None:
+        """Load what the features need up front, so a missing table fails at ``init``."""
+        if color and "cn" in self.kinds and self._cn is None:
+            self._cn = ColorNames(self._colornames_path)
+
+    def __call__(self, patches: np.ndarray, color: bool) -> np.ndarray:
+        """(N, H, W, C) uint8 patches -> (N, D, H//cell, W//cell) float32 features."""
+        blocks = []
+        for kind in self.active(color):
+            if kind == "fhog":
+                blocks.append(fhog(patches, self.cell))
+            elif kind == "gray":
+                blocks.append(gray_features(patches, self.cell))
+            elif kind == "cn":
+                self.prepare(color)
+                assert self._cn is not None
+                blocks.append(self._cn(patches, self.cell))
+        feats = blocks[0] if len(blocks) == 1 else np.concatenate(blocks, axis=-1)
+        return np.ascontiguousarray(feats.transpose(0, 3, 1, 2), dtype=np.float32)

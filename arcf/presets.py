@@ -1,0 +1,171 @@
+"""Typed, immutable parameter sets of the three trackers of the paper.
+
+Every value says where it comes from: "paper" (Li et al., ICCV 2019, Section 6.1 / Table 1),
+"release" (the authors' public MATLAB code, as recorded in ``docs/arcf-reference.md`` of the shared
+folder) or "BACF" / "DSST" when the release inherits it unchanged from those trackers. Where the
+release departs from the paper, the preset follows the release (that is what produced the
+published boxes) and says so.
+
+Overrides are applied with :func:`make_params`, which rejects unknown names so that a typo in an
+experiment fails loudly instead of silently running the default.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+from .errors import UnknownPresetError
+
+AberranceMode = Literal["paper", "release"]
+ScaleMode = Literal["search", "filter"]
+SamplingMode = Literal["bacf", "eco"]
+SizingMode = Literal["filter_max_area", "sample_area"]
+
+
+@dataclass(frozen=True)
+class ScaleFilterParams:
+    """The 1-D DSST scale filter of ARCF-HC (release: inherited from DSST)."""
+
+    n_scales: int = 33  # release
+    scale_step: float = 1.03  # release (DSST uses 1.02)
+    sigma_factor: float = 0.5  # release: label sigma = sqrt(n_scales) * 0.5 = sqrt(33)/2
+    learning_rate: float = 0.025  # release / DSST
+    regularizer: float = 1e-4  # release / DSST (lambda of the scale filter)
+    model_max_area: int = 512  # release / DSST: scale patches resized to at most 512 px (32x16)
+    model_min_side: int = 8  # ECO's floor on the scale model size, keeps fHOG >= 2x2 cells
+
+
+@dataclass(frozen=True)
+class TrackerParams:
+    """Everything that defines one tracker. Field comments give the source of each default."""
+
+    name: str
+    #: Feature channels, in block order: "gray" (1), "fhog" (31), "cn" (10, colour frames only).
+    features: tuple[str, ...]
+    #: ADMM iterations per frame. release ARCF-H: 2 (paper: 5); ARCF-HC: 5.
+    admm_iterations: int
+    #: Appearance-model learning rate eta. release ARCF-H: 0.019 (paper: 0.0192); ARCF-HC 0.0192.
+    learning_rate: float
+    #: "search": ARCF-H's joint search over ``n_scales`` scales; "filter": ARCF-HC's DSST filter.
+    scale_mode: ScaleMode
+    #: Newton iterations of the sub-cell peak search. release: 50 (ARCF-H), 5 (ARCF-HC).
+    newton_iterations: int
+    #: ARCF-H rounds the translation to whole pixels; ARCF-HC keeps it sub-pixel (release).
+    round_translation: bool
+    #: Patch sampling: BACF's ``get_pixels`` (ARCF-H) or ECO's ``sample_patch`` (ARCF-HC).
+    sampling: SamplingMode
+    #: How the working resolution is chosen (see :mod:`arcf.tracker`).
+    sizing: SizingMode
+    #: gamma, the aberrance penalty (paper and release: 0.71). 0 gives BACF.
+    gamma: float = 0.71
+    #: lambda, the filter regulariser (paper and release: 0.01).
+    admm_lambda: float = 0.01
+    #: mu schedule: mu0 = 1, mu <- min(beta mu, mu_max) (release, from BACF).
+    mu_init: float = 1.0
+    mu_scale_step: float = 10.0
+    mu_max: float = 1e4
+    #: Aberrance term: "paper" uses the DFT of the shifted previous map (Eq. 5); "release" feeds
+    #: the spatial map into the Fourier-domain formula as the authors' code does.
+    aberrance: AberranceMode = "paper"
+    #: Cell size of all features (release: 4).
+    cell_size: int = 4
+    #: Search region side = sqrt(w h) * sqrt(search_area_scale) (release: 5, square region).
+    search_area_scale: float = 5.0
+    #: Gaussian label sigma = sqrt(cells of the target) * output_sigma_factor (release: 1/16).
+    output_sigma_factor: float = 1.0 / 16.0
+    #: ARCF-H: feature grid at most 2500 cells (50x50) (release, from BACF).
+    filter_max_area: int = 2500
+    #: ARCF-H: tiny-target rule threshold, 0.75^2 of ``filter_max_area`` (release, from BACF).
+    cell_selection_thresh: float = 0.75**2
+    #: ARCF-HC: the search region's pixel area is rescaled into [150^2, 200^2] (release, ECO).
+    min_image_sample_size: float = 150.0**2
+    max_image_sample_size: float = 200.0**2
+    #: ARCF-H scale search: 5 scales, step 1.01 (release, from BACF).
+    n_scales: int = 5
+    scale_step: float = 1.01
+    #: ARCF-HC scale filter.
+    scale_filter: ScaleFilterParams = field(default_factory=ScaleFilterParams)
+
+    def __post_init__(self) -> None:
+        problems = []
+        if self.admm_iterations < 1:
+            problems.append("admm_iterations must be >= 1")
+        if not 0.0 < self.learning_rate <= 1.0:
+            problems.append("learning_rate must be in (0, 1]")
+        if self.gamma < 0:
+            problems.append("gamma must be >= 0")
+        if self.admm_lambda < 0:
+            problems.append("admm_lambda must be >= 0")
+        if self.cell_size < 1:
+            problems.append("cell_size must be >= 1")
+        if self.n_scales < 1:
+            problems.append("n_scales must be >= 1")
+        if self.aberrance not in ("paper", "release"):
+            problems.append("aberrance must be 'paper' or 'release'")
+        unknown = set(self.features) - {"gray", "fhog", "cn"}
+        if unknown:
+            problems.append(f"unknown features {sorted(unknown)}")
+        if problems:
+            raise UnknownPresetError(
+                f"invalid parameters for {self.name!r}: " + "; ".join(problems)
+            )
+
+
+ARCF_H = TrackerParams(
+    name="arcf-h",
+    features=("fhog",),
+    admm_iterations=2,  # release (paper: 5)
+    learning_rate=0.019,  # release (paper: 0.0192)
+    scale_mode="search",
+    newton_iterations=50,  # release (BACF)
+    round_translation=True,  # release (BACF)
+    sampling="bacf",
+    sizing="filter_max_area",
+)
+
+ARCF_HC = TrackerParams(
+    name="arcf-hc",
+    features=("gray", "fhog", "cn"),
+    admm_iterations=5,  # release and paper
+    learning_rate=0.0192,  # release and paper
+    scale_mode="filter",
+    newton_iterations=5,  # release (ECO/STRCF)
+    round_translation=False,  # release (ECO/STRCF)
+    sampling="eco",
+    sizing="sample_area",
+)
+
+#: BACF is ARCF-H without the aberrance term; the release's "Baseline_BACF" was produced this way.
+BACF = dataclasses.replace(ARCF_H, name="bacf", gamma=0.0)
+
+PRESETS: dict[str, TrackerParams] = {p.name: p for p in (ARCF_H, ARCF_HC, BACF)}
+
+
+def make_params(preset: str | TrackerParams, **overrides: Any) -> TrackerParams:
+    """A preset with keyword overrides, e.g. ``make_params("arcf-h", aberrance="release")``.
+
+    ``scale_filter`` may be overridden with a :class:`ScaleFilterParams` or a dict of its fields.
+    """
+    if isinstance(preset, TrackerParams):
+        base = preset
+    else:
+        key = str(preset).lower().replace("_", "-")
+        if key not in PRESETS:
+            raise UnknownPresetError(
+                f"unknown preset {preset!r}; choose one of {', '.join(sorted(PRESETS))}"
+            )
+        base = PRESETS[key]
+    names = {f.name for f in dataclasses.fields(TrackerParams)}
+    unknown = sorted(set(overrides) - names)
+    if unknown:
+        raise UnknownPresetError(
+            f"unknown parameter(s) {unknown} for preset {base.name!r}; valid: {sorted(names)}"
+        )
+    sf = overrides.get("scale_filter")
+    if isinstance(sf, dict):
+        overrides["scale_filter"] = dataclasses.replace(base.scale_filter, **sf)
+    if "features" in overrides:
+        overrides["features"] = tuple(overrides["features"])
+    return dataclasses.replace(base, **overrides) if overrides else base
