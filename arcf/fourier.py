@@ -115,8 +115,11 @@ def newton_peak(
             new_y = py - (h_xx * grad_y - h_xy * grad_x) / det
             new_x = px - (h_yy * grad_x - h_xy * grad_y) / det
         ok = np.isfinite(new_y) & np.isfinite(new_x)
+        step = np.max(np.abs(np.where(ok, new_y - py, 0)) + np.abs(np.where(ok, new_x - px, 0)))
         py = np.where(ok, new_y, py)
         px = np.where(ok, new_x, px)
+        if step < 1e-10:  # converged (quadratically): further iterations are a fixed point
+            break
 
     val = np.real(series(py, px)[:, 0, 0]) / (h * w)
     worse = ~(val >= init_val)  # also catches NaN

@@ -23,13 +23,19 @@ vectorised over pixels *and* over a batch of same-size images:
   comparisons against the bin boundaries plus a lookup table - no ``atan2`` (whose float rounding
   would move pixels lying near a boundary, e.g. exactly vertical gradients, to the wrong bin);
 * the spatial voting weights only depend on the pixel's position modulo the cell size, so the
-  four bilinear weight maps and the target-cell indices are precomputed per image shape (and
-  cached), and the histogram is four ``np.bincount`` calls over all pixels of the batch;
-* normalisation works on whole (batch, cells) arrays with one small loop over the 4 normalisers.
+  bilinear weight maps and target-cell indices are precomputed per image shape (and cached);
+  the two horizontal neighbours travel together as the real and imaginary part of a complex64
+  vote, so the whole histogram is two ``np.add.at`` scatters over all pixels of the batch;
+* normalisation works on whole orientation planes with one small loop over the 4 normalisers;
+* large intermediates live in per-thread scratch buffers that are reused across calls: fresh
+  multi-100-kB temporaries page-fault on every call, which costs more than the arithmetic.
 """
 
 from __future__ import annotations
 
+import math
+import threading
+from collections.abc import Iterator
 from fractions import Fraction
 from functools import lru_cache
 
@@ -40,6 +46,12 @@ __all__ = ["fhog", "fhog_num_channels"]
 
 #: Weight of the 4 texture (gradient-energy) channels, as in the toolbox (~ 1 / sqrt(18)).
 _TEXTURE_WEIGHT = np.float32(0.2357)
+
+#: Pixels per chunk of a batch: keeps the working set (~60 B / pixel) within a 2-4 MB L2 cache.
+_CHUNK_PIXELS = 48_000
+
+#: Dtypes (and channel counts) that ``cv2.split`` handles; others use a strided numpy copy.
+_CV2_SPLIT_DTYPES = (np.uint8, np.uint16, np.int16, np.float32, np.float64)
 
 
 def fhog_num_channels(n_orients: int = 9) -> int:
@@ -111,12 +123,63 @@ def fhog(
     if hb == 0 or wb == 0 or x.size == 0:
         return np.zeros((*lead, hb, wb, n_out), np.float32)
 
-    n_img = int(np.prod(lead, dtype=np.int64)) if lead else 1
+    n_img = math.prod(lead)
     x = x.reshape(n_img, height, width, channels)
-    gx, gy, mag2 = _dominant_gradient(x, hb * cell_size, wb * cell_size)
-    hist = _histogram(gx, gy, mag2, cell_size, n_orients)
-    out = _normalise(hist, n_img, cell_size, n_orients, np.float32(clip))
+    out = np.empty((n_img, hb, wb, n_out), np.float32)
+    # Vectorised over the batch, but in chunks of about _CHUNK_PIXELS pixels: the ~15
+    # intermediates per pixel then stay in the L2 cache (a batch of five 200x200 patches in
+    # one go is ~1.5x slower per patch than one at a time).
+    step = max(1, _CHUNK_PIXELS // (height * width))
+    for i in range(0, n_img, step):
+        chunk = x[i : i + step]
+        n_chunk = chunk.shape[0]
+        gx, gy, mag2 = _dominant_gradient(chunk, hb * cell_size, wb * cell_size)
+        # R1 and (filled later) R2, orientation-major: (3n, N * hb * wb).
+        r = _scratch("r", (3 * n_orients, n_chunk * hb * wb), np.float32)
+        r1 = r[: 2 * n_orients].reshape(2 * n_orients, n_chunk, hb, wb)
+        _histogram(gx, gy, mag2, cell_size, n_orients, out=r1)
+        dst = out[i : i + n_chunk].reshape(n_chunk * hb * wb, n_out)
+        _normalise(r, n_chunk, hb, wb, cell_size, n_orients, clip, out=dst)
     return out.reshape(*lead, hb, wb, n_out)
+
+
+# --------------------------------------------------------------------------------------------
+# Scratch memory
+# --------------------------------------------------------------------------------------------
+
+_SCRATCH = threading.local()
+_SCRATCH_MAX_BYTES = 64 << 20  # larger requests (huge images) are plain allocations
+
+
+def _scratch(name: str, shape: tuple[int, ...], dtype: type) -> np.ndarray:
+    """Uninitialised work array, reused across calls (per thread, one buffer per ``name``).
+
+    Why: on the tracker's patch sizes every intermediate is 100 kB - 2 MB, above glibc's mmap
+    threshold, and a fresh one page-faults on first touch on every call; measured, that cost
+    more than the arithmetic (e.g. ``cv2.split`` of 5 patches: 0.75 ms into fresh arrays vs
+    0.04 ms into reused ones).  Buffers only grow, so memory is bounded by the largest batch
+    seen.  Callers must not let two live arrays share a name, nor return a scratch array.
+    """
+    pool = _SCRATCH.__dict__  # this thread's dict
+    key = (name, shape, dtype)
+    arr = pool.get(key)
+    if arr is not None:
+        return arr
+    dt = np.dtype(dtype)
+    nbytes = math.prod(shape) * dt.itemsize
+    if nbytes > _SCRATCH_MAX_BYTES:
+        return np.empty(shape, dt)
+    base = pool.get(name)
+    if base is None or base.nbytes < nbytes:
+        # Grow; forget the views of the old buffer so that it can be freed.
+        for k in [k for k in pool if isinstance(k, tuple) and k[0] == name]:
+            del pool[k]
+        base = pool[name] = np.empty(max(nbytes, 64), np.uint8)
+    if len(pool) > 512:  # many different shapes: start over rather than grow without bound
+        pool.clear()
+        pool[name] = base
+    arr = pool[key] = base[:nbytes].view(dt).reshape(shape)
+    return arr
 
 
 # --------------------------------------------------------------------------------------------
@@ -124,34 +187,46 @@ def fhog(
 # --------------------------------------------------------------------------------------------
 
 
-def _float_planes(x: np.ndarray) -> list[np.ndarray]:
-    """Split ``(N, H, W, C)`` into C contiguous float32 planes of shape ``(N * H, W)``."""
+def _float_planes(x: np.ndarray) -> Iterator[np.ndarray]:
+    """Yield the C channels of ``(N, H, W, C)`` as contiguous float32 planes ``(N * H, W)``.
+
+    One plane at a time in a single scratch buffer (small working set); each yielded plane is
+    only valid until the next one is requested.  A float32 grey input is yielded as a view.
+    """
     n_img, height, width, channels = x.shape
+    rows = n_img * height
     if channels == 1:
-        return [np.ascontiguousarray(x.reshape(n_img * height, width), dtype=np.float32)]
-    stacked = x.reshape(n_img * height, width, channels)
-    if channels <= 4 and x.dtype in (np.uint8, np.float32, np.float64):
-        planes = cv2.split(np.ascontiguousarray(stacked))  # much faster than a strided copy
+        sources = [x.reshape(rows, width)]
+        if sources[0].dtype == np.float32 and sources[0].flags.c_contiguous:
+            yield sources[0]
+            return
+    elif channels <= 4 and x.dtype in _CV2_SPLIT_DTYPES:
+        split = [_scratch(f"split{c}", (rows, width), x.dtype) for c in range(channels)]
+        sources = list(cv2.split(np.ascontiguousarray(x).reshape(rows, width, channels), split))
+        if x.dtype == np.float32:
+            yield from sources
+            return
     else:
-        planes = list(np.moveaxis(stacked, -1, 0))
-    return [np.ascontiguousarray(p, dtype=np.float32) for p in planes]
+        sources = list(np.moveaxis(x.reshape(rows, width, channels), -1, 0))
+    plane = _scratch("plane", (rows, width), np.float32)
+    for src in sources:
+        np.copyto(plane, src, casting="unsafe")
+        yield plane
 
 
-def _doubled_gradient(plane: np.ndarray, n_img: int) -> tuple[np.ndarray, np.ndarray]:
-    """Toolbox derivative ``gradientMag`` uses, times two: ``(2 gx, 2 gy)`` of ``(N * H, W)``.
+def _doubled_gradient(plane: np.ndarray, n_img: int, gx: np.ndarray, gy: np.ndarray) -> None:
+    """Write the toolbox's derivatives of ``plane`` ``(N * H, W)``, times two, to ``gx``, ``gy``.
 
-    Interior: ``I[i+1] - I[i-1]`` (half of it is the central difference); first/last index:
+    Interior: ``I[i+1] - I[i-1]`` (twice the central difference); first/last index:
     ``2 (I[1] - I[0])`` / ``2 (I[n-1] - I[n-2])`` (the toolbox's un-halved one-sided
     difference); zero along an axis of length 1.  Doubling is exact in floating point, so bins
-    and channel choices are unaffected; the factor 1/2 is folded into the voting weights.  Both
-    interiors are computed as one shifted subtraction over the flattened batch, and the rows /
-    columns where that straddles two rows or two images are then overwritten by the border rule.
+    and channel choices are unaffected; the factor 1/2 is folded into the voting weights.  Each
+    interior is a single shifted subtraction over the flattened batch; the columns / rows where
+    that straddles two rows or two images are then overwritten by the border rule.
     """
     height = plane.shape[0] // n_img
     width = plane.shape[1]
     flat = plane.reshape(-1)
-    gx = np.empty_like(plane)
-    gy = np.empty_like(plane)
     if width > 1:
         np.subtract(flat[2:], flat[:-2], out=gx.reshape(-1)[1:-1])
         for dst, a, b in ((0, 1, 0), (width - 1, width - 1, width - 2)):
@@ -170,7 +245,6 @@ def _doubled_gradient(plane: np.ndarray, n_img: int) -> tuple[np.ndarray, np.nda
             row *= 2.0
     else:
         gy.fill(0.0)
-    return gx, gy
 
 
 def _dominant_gradient(
@@ -178,31 +252,36 @@ def _dominant_gradient(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Doubled gradient of the channel with the largest magnitude, cropped to ``(h0, w0)``.
 
-    Returns three contiguous float32 arrays ``(N, h0, w0)``: ``2 gx``, ``2 gy`` and
+    Returns three contiguous float32 scratch arrays ``(N, h0, w0)``: ``2 gx``, ``2 gy`` and
     ``4 (gx^2 + gy^2)``.  Like the toolbox, a channel replaces the current best only if its
     squared magnitude is strictly larger, so the first channel wins ties.
     """
     n_img, height, width, _ = x.shape
-    best_gx = best_gy = best_m2 = np.empty(0, np.float32)
+    shape = (n_img * height, width)
+    gx, gy, m2 = (_scratch(name, shape, np.float32) for name in ("gx", "gy", "m2"))
     for c, plane in enumerate(_float_planes(x)):
-        gx, gy = _doubled_gradient(plane, n_img)
-        m2 = gx * gx
-        m2 += gy * gy
         if c == 0:
-            best_gx, best_gy, best_m2 = gx, gy, m2
+            cgx, cgy, cm2 = gx, gy, m2
         else:
-            # Masked copies (branch-free SIMD in OpenCV; np.where/copyto are ~30x slower here).
-            better = cv2.compare(m2, best_m2, cv2.CMP_GT)
-            cv2.copyTo(gx, better, best_gx)
-            cv2.copyTo(gy, better, best_gy)
-            np.maximum(best_m2, m2, out=best_m2)
-    out = []
-    for a in (best_gx, best_gy, best_m2):
-        a = a.reshape(n_img, height, width)
-        if h0 != height or w0 != width:
-            a = np.ascontiguousarray(a[:, :h0, :w0])
-        out.append(a)
-    return out[0], out[1], out[2]
+            cgx, cgy, cm2 = (_scratch(n, shape, np.float32) for n in ("cgx", "cgy", "cm2"))
+        _doubled_gradient(plane, n_img, cgx, cgy)
+        cv2.multiply(cgx, cgx, cm2)
+        cv2.accumulateSquare(cgy, cm2)  # cm2 += cgy^2 without a temporary
+        if c > 0:
+            # Masked copies: branch-free SIMD in OpenCV (np.where / np.copyto(where=) are ~30x
+            # slower on the random masks of natural images).
+            better = cv2.compare(cm2, m2, cv2.CMP_GT, _scratch("mask", shape, np.uint8))
+            cv2.copyTo(cgx, better, gx)
+            cv2.copyTo(cgy, better, gy)
+            cv2.max(m2, cm2, m2)
+    if h0 == height and w0 == width:
+        return gx.reshape(n_img, h0, w0), gy.reshape(n_img, h0, w0), m2.reshape(n_img, h0, w0)
+    cropped = []
+    for name, a in (("crop_gx", gx), ("crop_gy", gy), ("crop_m2", m2)):
+        dst = _scratch(name, (n_img, h0, w0), np.float32)
+        np.copyto(dst, a.reshape(n_img, height, width)[:, :h0, :w0])
+        cropped.append(dst)
+    return cropped[0], cropped[1], cropped[2]
 
 
 # --------------------------------------------------------------------------------------------
@@ -266,25 +345,31 @@ def _orientation_tables(n_orients: int) -> tuple[tuple[float, ...], np.ndarray]:
     return tuple(thresholds), table
 
 
-def _orientation_code(gx: np.ndarray, gy: np.ndarray, n_orients: int) -> np.ndarray:
+def _orientation_code(
+    gx: np.ndarray, gy: np.ndarray, n_orients: int, out: np.ndarray | None = None
+) -> np.ndarray:
     """uint8 code of each gradient direction; ``_orientation_tables`` maps it to the bin.
 
     Exact (no ``atan2``): besides sign tests, only ``|gy| / |gx| > threshold`` is evaluated, in
-    float32.  For every gradient an 8-bit image can produce (components k/2, |k| <= 510,
-    and more generally k/4) this was checked exhaustively to agree with exact arithmetic: the
-    closest such direction is ~5e-7 (relative) away from a boundary, 8x the float32 rounding.
+    float32.  For every gradient an 8-bit image can produce (components k/2, |k| <= 510, and
+    more generally k/4) this was checked exhaustively to agree with exact arithmetic: the
+    closest such direction is ~5e-7 (relative) away from an irrational boundary, 8x the float32
+    rounding; rational boundaries (45 / 90 degrees) are compared exactly.
     """
     thresholds, _ = _orientation_tables(n_orients)
     n_q = len(thresholds) + 1
-    code = np.less(gy, 0).view(np.uint8)
+    code = np.empty(gx.shape, np.uint8) if out is None else out
+    flag = _scratch("flag", gx.shape, np.bool_)
+    ratio = _scratch("ratio", gx.shape, np.float32)
+    np.less(gy, 0, out=code.view(np.bool_))
     code += code
-    code += np.less(gx, 0)
-    code *= np.uint8(n_q)
+    code += np.less(gx, 0, out=flag)
+    code *= np.uint8(n_q)  # quadrant * n_q
     with np.errstate(divide="ignore", invalid="ignore"):
-        ratio = np.divide(gy, gx)  # inf for vertical gradients, nan for zero gradients
+        np.divide(gy, gx, out=ratio)  # +-inf for vertical gradients, nan for zero gradients
     np.abs(ratio, out=ratio)
     for t in thresholds:
-        code += ratio > np.float32(t)
+        code += np.greater(ratio, np.float32(t), out=flag)
     return code
 
 
@@ -292,84 +377,105 @@ def _orientation_bins(gx: np.ndarray, gy: np.ndarray, n_orients: int = 9) -> np.
     """Contrast-sensitive bin (uint8, ``0 .. 2n-1``) of every gradient direction (gx, gy).
 
     Equals ``int(theta * 2n / 2pi + 0.5) mod 2n`` with ``theta = atan2(gy, gx)`` in
-    ``[0, 2pi)``, evaluated exactly (used by the histogram via a table; handy for tests).
+    ``[0, 2pi)``, evaluated exactly (the histogram uses the code directly; handy for tests).
     """
     _, table = _orientation_tables(n_orients)
+    gx = np.asarray(gx, np.float32)
+    gy = np.asarray(gy, np.float32)
     return table[_orientation_code(gx, gy, n_orients)]
 
 
 @lru_cache(maxsize=16)
 def _voting_layout(
     n_img: int, hb: int, wb: int, cell: int
-) -> tuple[np.ndarray, tuple[np.ndarray, ...]]:
-    """Target-cell index and the 4 bilinear weight maps of every pixel of the (h0, w0) crop.
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Target-cell index and bilinear voting weights of every pixel of the ``(h0, w0)`` crop.
 
     For pixel column ``x``: ``xb = (x + 0.5) / cell - 0.5``; it votes ``1 - xd`` into cell
-    column ``floor(xb)`` and ``xd = xb - floor(xb)`` into the next one (same for rows); the
-    four products weight the four target cells.  The returned flat index addresses the first
-    (upper-left) target cell in one orientation plane of a histogram padded by one cell on the
-    top/left, shape ``(n_img, hb + 1, wb + 1)``.  The weights include the toolbox's
-    ``1 / cell^2`` and the 1/2 undoing the doubled gradients.  Both depend only on the position
-    modulo ``cell`` and the shape, hence the cache.
+    column ``floor(xb)`` and ``xd = xb - floor(xb)`` into the next one; same for rows; the four
+    products weight the four target cells.  Returns:
+
+    * ``index`` (int32, ``N * h0 * w0``): the first (upper-left) target cell in one orientation
+      plane of the accumulator, laid out ``(N, hb + 1, wb + 1)``: one padding row / column on
+      top / left holds the votes for the non-existent cells -1 (which the toolbox drops too);
+      votes for cells hb / wb wrap into the next padding column / row and are dropped as well;
+    * ``w_top``, ``w_bottom`` (complex64, ``h0 * w0``): the weights for the first and second
+      target row, with the left / right target column in the real / imaginary part.
+
+    The weights include the toolbox's ``1 / cell^2`` and the 1/2 undoing the doubled gradients.
+    Everything depends only on the position modulo ``cell`` and the shape, hence the cache.
     """
     pos = (np.arange(cell) + 0.5) / cell - 0.5
     first = np.floor(pos)  # -1 or 0: offset of the first target cell
     frac = pos - first
-    h0, w0 = hb * cell, wb * cell
-    # Padded index (0 .. hb / 0 .. wb) of the first target row / column of each pixel.
-    row0 = (np.arange(hb).repeat(cell) + np.tile(first, hb) + 1).astype(np.intp)
-    col0 = (np.arange(wb).repeat(cell) + np.tile(first, wb) + 1).astype(np.intp)
+    row0 = (np.arange(hb).repeat(cell) + np.tile(first, hb) + 1).astype(np.int64)
+    col0 = (np.arange(wb).repeat(cell) + np.tile(first, wb) + 1).astype(np.int64)
     base = (row0[:, None] * (wb + 1) + col0[None, :]).reshape(-1)
-    img_off = np.arange(n_img, dtype=np.intp) * ((hb + 1) * (wb + 1))
-    index = (img_off[:, None] + base[None, :]).reshape(-1)
-    index.setflags(write=False)
+    img_off = np.arange(n_img, dtype=np.int64) * ((hb + 1) * (wb + 1))
+    index = (img_off[:, None] + base[None, :]).reshape(-1).astype(np.int32)
 
-    wy = np.tile(np.stack([1.0 - frac, frac]), (1, hb))  # (2, h0)
-    wx = np.tile(np.stack([1.0 - frac, frac]), (1, wb))  # (2, w0)
+    wy = np.tile(np.stack([1.0 - frac, frac]), (1, hb))  # (2, h0): first / second target row
+    wx = np.tile(np.stack([1.0 - frac, frac]), (1, wb))  # (2, w0): first / second column
     scale = 0.5 / (cell * cell)
-    weights = []
-    for a in range(2):
-        for b in range(2):
-            w = (scale * wy[a][:, None] * wx[b][None, :]).reshape(1, h0 * w0)
-            w.setflags(write=False)
-            weights.append(w)
-    return index, tuple(weights)
+    wx_c = wx[0] + 1j * wx[1]
+    w_top, w_bottom = (
+        (scale * wy[a][:, None] * wx_c[None, :]).astype(np.complex64).reshape(-1) for a in range(2)
+    )
+    for arr in (index, w_top, w_bottom):
+        arr.setflags(write=False)
+    return index, w_top, w_bottom
 
 
 def _histogram(
-    gx: np.ndarray, gy: np.ndarray, mag2: np.ndarray, cell: int, n_orients: int
-) -> np.ndarray:
-    """Toolbox ``gradHist`` (hard orientation, bilinear spatial): float32 ``(2n, N, hb, wb)``.
+    gx: np.ndarray, gy: np.ndarray, mag2: np.ndarray, cell: int, n_orients: int, out: np.ndarray
+) -> None:
+    """Toolbox ``gradHist`` (hard orientation, bilinear spatial) into ``out`` ``(2n, N, hb, wb)``.
 
     Orientation-major ("planar") so that the normalisation can broadcast over whole planes.
+    ``mag2`` is overwritten.
     """
     n_img, h0, w0 = gx.shape
     hb, wb = h0 // cell, w0 // cell
     n_bins = 2 * n_orients
-    index, weights = _voting_layout(n_img, hb, wb, cell)
+    npix = n_img * h0 * w0
     plane = n_img * (hb + 1) * (wb + 1)
+    size = n_bins * plane
+    if size + wb + 2 >= 2**31:
+        raise ValueError("fhog: batch too large for int32 histogram indices; split it")
+    index, w_top, w_bottom = _voting_layout(n_img, hb, wb, cell)
+
+    # Flat accumulator index: orientation plane (via the code -> bin table) + target cell.
     _, table = _orientation_tables(n_orients)
-    offsets = table.astype(np.int32) * np.int32(plane)  # bin -> start of its plane
-    code = _orientation_code(gx, gy, n_orients).reshape(n_img * h0, w0)
-    key = index + cv2.LUT(code, offsets).reshape(-1)
-    mag = np.sqrt(mag2).astype(np.float64).reshape(n_img, h0 * w0)  # 2 * M
-    shape = (n_bins, n_img, hb + 1, wb + 1)
-    hist = np.zeros((n_bins, n_img, hb, wb), np.float64)
-    for (a, b), w in zip(((0, 0), (0, 1), (1, 0), (1, 1)), weights, strict=True):
-        votes = np.bincount(key, (mag * w).reshape(-1), minlength=n_bins * plane)
-        votes = votes.reshape(shape)
-        # Shift the votes for the (a, b)-th neighbour of the first target cell and drop the
-        # padding (cells -1 and hb / wb, which the toolbox discards as well).
-        hist += votes[:, :, 1 - a : hb + 1 - a, 1 - b : wb + 1 - b]
-    hist = hist.astype(np.float32)
+    offsets = table.astype(np.int32) * np.int32(plane)
+    code = _orientation_code(gx, gy, n_orients, _scratch("code", gx.shape, np.uint8))
+    start = cv2.LUT(
+        code.reshape(n_img * h0, w0), offsets, _scratch("start", (n_img * h0, w0), np.int32)
+    )
+    np.add(start.reshape(-1), index, out=start.reshape(-1))  # int32: cheap
+    key = _scratch("key", (npix,), np.intp)
+    np.copyto(key, start.reshape(-1))  # np.add.at is fastest with intp indices
+
+    # Complex votes: real part -> left target column, imaginary part -> right one; the two
+    # target rows are two scatters, the second one shifted by one accumulator row.
+    mag = np.sqrt(mag2, out=mag2).reshape(n_img, h0 * w0)  # 2 * M
+    votes = _scratch("votes", (n_img, h0 * w0), np.complex64)
+    acc = _scratch("acc", (size + wb + 2,), np.complex64)
+    acc.view(np.float64).fill(0.0)
+    for row_offset, weights in ((0, w_top), (wb + 1, w_bottom)):
+        np.multiply(mag, weights, out=votes)
+        np.add.at(acc[row_offset:], key, votes.reshape(-1))
+
+    # Cell (i, j) = real part at padded (i + 1, j + 1) + imaginary part at (i + 1, j).
+    total = _scratch("total", (size,), np.float32)
+    np.add(acc.real[1 : size + 1], acc.imag[:size], out=total)
+    np.copyto(out, total.reshape(n_bins, n_img, hb + 1, wb + 1)[:, :, 1:, :wb])
     # Border cells only collect 7/8 of an interior cell's weight: rescale them, sequentially
     # like the toolbox, so a single row / column gets the factor twice.
     s = np.float32(8.0 / 7.0)
-    hist[:, :, 0] *= s
-    hist[:, :, -1] *= s
-    hist[:, :, :, 0] *= s
-    hist[:, :, :, -1] *= s
-    return hist
+    out[:, :, 0] *= s
+    out[:, :, -1] *= s
+    out[:, :, :, 0] *= s
+    out[:, :, :, -1] *= s
 
 
 # --------------------------------------------------------------------------------------------
@@ -378,16 +484,27 @@ def _histogram(
 
 
 def _normalise(
-    r1: np.ndarray, n_img: int, cell: int, n_orients: int, clip: np.float32
-) -> np.ndarray:
-    """Toolbox ``hogNormMatrix`` + ``hogChannels``: ``(2n, N, hb, wb)`` -> ``(N, hb, wb, 3n+4)``."""
-    n_bins, _, hb, wb = r1.shape
+    r: np.ndarray,
+    n_img: int,
+    hb: int,
+    wb: int,
+    cell: int,
+    n_orients: int,
+    clip: float,
+    out: np.ndarray,
+) -> None:
+    """Toolbox ``hogNormMatrix`` + ``hogChannels``: ``r`` ``(3n, N*hb*wb)`` -> ``out``.
+
+    ``out`` is a contiguous ``(N * hb * wb, 3n + 4)`` float32 array (channels last).
+
+    ``r[:2n]`` holds R1 on entry; ``r[2n:]`` is filled with R2 here.  The 1/2 of the
+    orientation channels is folded into the normalisers and the clip value (exact: a power of
+    two), which saves a pass.
+    """
     n = n_orients
+    n_bins = 2 * n
     cells = n_img * hb * wb
-    # R = [R1; R2] with R2 the contrast-insensitive histogram (o and o + n merged).
-    r = np.empty((3 * n, cells), np.float32)
-    r[:n_bins] = r1.reshape(n_bins, cells)
-    np.add(r[:n], r[n:n_bins], out=r[n_bins:])
+    np.add(r[:n], r[n:n_bins], out=r[n_bins:])  # R2: contrast-insensitive (o and o + n merged)
     r2 = r[n_bins:]
     energy = np.einsum("kp,kp->p", r2, r2).reshape(n_img, hb, wb)
 
@@ -397,11 +514,15 @@ def _normalise(
     if wb > 1:
         energy = energy[:, :, :-1] + energy[:, :, 1:]
     eps = np.float32(1e-4) / 4 / cell / cell / cell / cell
-    block = np.float32(1.0) / np.sqrt(energy + eps)
+    block = np.float32(0.5) / np.sqrt(energy + eps)  # halved normalisers
     # Edge-pad by one cell on every side -> (N, hb + 1, wb + 1).
-    ri = np.clip(np.arange(hb + 1) - 1, 0, block.shape[1] - 1)
-    ci = np.clip(np.arange(wb + 1) - 1, 0, block.shape[2] - 1)
-    norm = block[:, ri][:, :, ci]
+    nbr, nbc = block.shape[1:]
+    norm = _scratch("norm", (n_img, hb + 1, wb + 1), np.float32)
+    norm[:, 1 : nbr + 1, 1 : nbc + 1] = block
+    norm[:, 0] = norm[:, 1]
+    norm[:, nbr + 1 :] = norm[:, nbr : nbr + 1]
+    norm[:, :, 0] = norm[:, :, 1]
+    norm[:, :, nbc + 1 :] = norm[:, :, nbc : nbc + 1]
     normalisers = (
         norm[:, 1:, 1:],  # the block whose top-left cell is this cell
         norm[:, :-1, 1:],  # the block one row up
@@ -409,17 +530,25 @@ def _normalise(
         norm[:, :-1, :-1],  # up-left
     )
 
-    out = np.empty((3 * n + 4, cells), np.float32)
-    acc = out[: 3 * n]
-    tmp = np.empty_like(r)
+    planar = _scratch("planar", (3 * n + 4, cells), np.float32)
+    acc = planar[: 3 * n]
+    tmp = _scratch("tmp", (3 * n, cells), np.float32)
+    nk_flat = _scratch("nk", (1, cells), np.float32)
+    nk_rows = _scratch("nk_rows", (3 * n, cells), np.float32)
+    half_clip = 0.5 * float(np.float32(clip))
     for k, nk in enumerate(normalisers):
-        np.multiply(r, np.ascontiguousarray(nk).reshape(1, cells), out=tmp)
-        np.minimum(tmp, clip, out=tmp)
+        np.copyto(nk_flat.reshape(n_img, hb, wb), nk)
+        # min(R * n_k, clip) / 2, in OpenCV: numpy's broadcasting multiply and np.minimum
+        # are 2-3x slower on these shapes.
+        cv2.repeat(nk_flat, 3 * n, 1, nk_rows)
+        cv2.multiply(r, nk_rows, tmp)
+        cv2.threshold(tmp, half_clip, half_clip, cv2.THRESH_TRUNC, tmp)
         if k == 0:
-            acc[...] = tmp
+            np.copyto(acc, tmp)
         else:
-            acc += tmp
-        np.sum(tmp[:n_bins], axis=0, out=out[3 * n + k])
-    acc *= np.float32(0.5)
-    out[3 * n :] *= _TEXTURE_WEIGHT
-    return cv2.transpose(out)
+            np.add(acc, tmp, out=acc)
+        cv2.reduce(tmp[:n_bins], 0, cv2.REDUCE_SUM, planar[3 * n + k : 3 * n + k + 1])
+    planar[3 * n :] *= np.float32(2.0) * _TEXTURE_WEIGHT
+    transposed = cv2.transpose(planar, out)  # channels last, written in place
+    if transposed is not out:  # cannot happen for a matching contiguous float32 array
+        np.copyto(out, transposed)

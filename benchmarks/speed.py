@@ -1,0 +1,195 @@
+"""Speed benchmark: ARCF-HC, ARCF-H and BACF next to OpenCV's C++ CSRT on the same frames.
+
+Frames are decoded before timing: the figure is tracker init + update only, as the paper and the
+release measure it (FPS = frames / seconds). Each (tracker, sequence, thread mode) runs in its own
+fresh process, so thread pinning applies before NumPy/SciPy/OpenCV load. CSRT comes from
+``opencv-contrib-python-headless``, which must not replace the project's
+``opencv-python-headless``: it runs from a separate virtual environment (``--csrt-python``;
+``--setup-csrt`` creates ``.venv-csrt`` with pip).
+
+    python benchmarks/speed.py --setup-csrt            # all local real sequences, 1 and default threads
+    python benchmarks/speed.py --threads 1 --sequences boat1,Animal3
+    python benchmarks/speed.py --profile arcf-h --sequences boat1   # where the time goes
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+TRACKERS = ("csrt", "arcf-hc", "arcf-h", "bacf")
+PIN = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
+       "NUMEXPR_NUM_THREADS": "1"}
+
+
+# ----------------------------------------------------------------------------- worker side
+def worker(job_file: str, tracker_name: str, threads: str, profile: bool) -> None:
+    """Runs in a fresh process: decode all frames, then time init + update."""
+    import cv2
+    import numpy as np
+
+    cv2.setNumThreads(1 if threads == "1" else -1)
+    job = json.loads(Path(job_file).read_text())
+    frames = [cv2.imread(p, cv2.IMREAD_COLOR) for p in job["frames"]]
+    x, y, w, h = job["box"]
+    if tracker_name == "csrt":
+        tracker = cv2.TrackerCSRT.create()
+        box0 = (round(x - 1), round(y - 1), round(w), round(h))  # OpenCV: 0-based integer rect
+        t0 = time.perf_counter()
+        tracker.init(frames[0], box0)
+        for f in frames[1:]:
+            tracker.update(f)
+        seconds = time.perf_counter() - t0
+    else:
+        sys.path.insert(0, str(ROOT))
+        import arcf
+
+        tracker = arcf.create_tracker(tracker_name)
+
+        def run() -> float:
+            t0 = time.perf_counter()
+            tracker.init(frames[0], (x, y, w, h))
+            for f in frames[1:]:
+                tracker.update(f)
+            return time.perf_counter() - t0
+
+        if profile:
+            import cProfile
+            import pstats
+
+            prof = cProfile.Profile()
+            seconds = prof.runcall(run)
+            stats = pstats.Stats(prof, stream=sys.stderr)
+            stats.sort_stats("tottime").print_stats(20)
+        else:
+            seconds = run()
+    print(json.dumps({"frames": len(frames), "seconds": seconds,
+                      "fps": len(frames) / seconds, "pixels": list(np.shape(frames[0]))}))
+
+
+# ----------------------------------------------------------------------------- orchestrator
+def cpu_model() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown"
+
+
+def setup_csrt(venv: Path) -> Path:
+    py = venv / "bin" / "python"
+    if not py.exists():
+        subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True)
+        subprocess.run([str(py), "-m", "pip", "install", "-q", "numpy",
+                        "opencv-contrib-python-headless"], check=True)
+    return py
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--worker", nargs=3, metavar=("JOB", "TRACKER", "THREADS"),
+                    help=argparse.SUPPRESS)
+    ap.add_argument("--profile", metavar="TRACKER", help="cProfile one tracker, print top 20")
+    ap.add_argument("--threads", default="1,default", help="'1', 'default' or both")
+    ap.add_argument("--sequences", default="", help="comma-separated names (default: all local)")
+    ap.add_argument("--trackers", default=",".join(TRACKERS))
+    ap.add_argument("--csrt-python", type=Path, default=ROOT / ".venv-csrt" / "bin" / "python")
+    ap.add_argument("--setup-csrt", action="store_true",
+                    help="create .venv-csrt with opencv-contrib-python-headless if missing")
+    ap.add_argument("--data", type=Path, default=None)
+    args = ap.parse_args()
+    if args.worker:
+        worker(*args.worker, profile=bool(os.environ.get("ARCF_PROFILE")))
+        return 0
+
+    sys.path.insert(0, str(ROOT))
+    from arcf.data import data_root
+    from arcf.eval import load_dataset
+
+    data = args.data or data_root()
+    wanted = [s for s in args.sequences.split(",") if s]
+    seqs = []
+    for ds in ("uav123_10fps", "dtb70", "uavdt"):
+        try:
+            seqs += [s for s in load_dataset(ds, root=data / ds) if not wanted or s.name in wanted]
+        except Exception as exc:
+            print(f"# skipping {ds}: {exc}", file=sys.stderr)
+    trackers = [t for t in args.trackers.split(",") if t]
+    if args.profile:
+        trackers, modes = [args.profile], ["1"]
+    else:
+        modes = [m for m in args.threads.split(",") if m]
+    if "csrt" in trackers:
+        if args.setup_csrt:
+            args.csrt_python = setup_csrt(ROOT / ".venv-csrt")
+        if not args.csrt_python.exists():
+            ap.error(f"no CSRT interpreter at {args.csrt_python}; pass --setup-csrt or "
+                     "--csrt-python PATH (a venv with opencv-contrib-python-headless)")
+
+    fps: dict[tuple[str, str, str], float] = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for seq in seqs:
+            job = Path(tmp) / f"{seq.name}.json"
+            job.write_text(json.dumps({"frames": [str(p) for p in seq.frames],
+                                       "box": list(seq.init_box)}))
+            for mode in modes:
+                for t in trackers:  # interleaved: all trackers of one sequence back to back
+                    env = dict(os.environ)
+                    if mode == "1":
+                        env.update(PIN)
+                    else:
+                        for k in PIN:
+                            env.pop(k, None)
+                    if args.profile:
+                        env["ARCF_PROFILE"] = "1"
+                    py = str(args.csrt_python) if t == "csrt" else sys.executable
+                    out = subprocess.run(
+                        [py, str(Path(__file__).resolve()), "--worker", str(job), t, mode],
+                        env=env, capture_output=True, text=True, cwd=ROOT,
+                    )
+                    if out.returncode != 0:
+                        print(out.stderr, file=sys.stderr)
+                        raise SystemExit(f"worker {t} on {seq.name} failed")
+                    if args.profile:
+                        print(out.stderr)
+                    r = json.loads(out.stdout.strip().splitlines()[-1])
+                    fps[(seq.name, mode, t)] = r["fps"]
+                    print(f"# {seq.name} [{mode}] {t}: {r['fps']:.1f} FPS", file=sys.stderr)
+
+    if args.profile:
+        return 0
+    print(f"Machine: {os.cpu_count()} CPUs (`nproc`), {cpu_model()}; Python "
+          f"{platform.python_version()}. FPS = frames / (init + update seconds), frames decoded "
+          "beforehand.\n")
+    for mode in modes:
+        label = "single-threaded (BLAS/FFT/OpenCV pinned to 1 thread)" if mode == "1" else \
+            "default threads"
+        print(f"### {label}\n")
+        print("| sequence | frames | " + " | ".join(trackers) + " | "
+              + " | ".join(f"{t} / CSRT" for t in trackers if t != "csrt") + " |")
+        print("| --- | --- |" + " --- |" * (2 * len(trackers) - 1))
+        for seq in seqs:
+            row = [f"{fps[(seq.name, mode, t)]:.1f}" for t in trackers]
+            ratios = [f"{fps[(seq.name, mode, t)] / fps[(seq.name, mode, 'csrt')]:.2f}x"
+                      for t in trackers if t != "csrt" and "csrt" in trackers]
+            print(f"| {seq.name} | {len(seq)} | " + " | ".join(row + ratios) + " |")
+        means = {t: sum(fps[(s.name, mode, t)] for s in seqs) / len(seqs) for t in trackers}
+        ratio = {t: sum(fps[(s.name, mode, t)] / fps[(s.name, mode, "csrt")] for s in seqs)
+                 / len(seqs) for t in trackers if t != "csrt" and "csrt" in trackers}
+        print("| **mean** | | " + " | ".join(f"**{means[t]:.1f}**" for t in trackers) + " | "
+              + " | ".join(f"**{ratio[t]:.2f}x**" for t in ratio) + " |\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
