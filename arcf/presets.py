@@ -13,6 +13,7 @@ experiment fails loudly instead of silently running the default.
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -35,6 +36,23 @@ class ScaleFilterParams:
     regularizer: float = 1e-4  # release / DSST (lambda of the scale filter)
     model_max_area: int = 512  # release / DSST: scale patches resized to at most 512 px (32x16)
     model_min_side: int = 8  # ECO's floor on the scale model size, keeps fHOG >= 2x2 cells
+
+    def __post_init__(self) -> None:
+        problems = []
+        if not self.n_scales >= 1:
+            problems.append("scale_filter.n_scales must be >= 1")
+        if not self.scale_step > 1:
+            problems.append("scale_filter.scale_step must be > 1")
+        if not self.sigma_factor > 0:
+            problems.append("scale_filter.sigma_factor must be > 0")
+        if not 0 < self.learning_rate <= 1:
+            problems.append("scale_filter.learning_rate must be in (0, 1]")
+        if not self.regularizer > 0:
+            problems.append("scale_filter.regularizer must be > 0")
+        if not self.model_max_area >= 16 or not self.model_min_side >= 4:
+            problems.append("scale_filter model size too small (max area >= 16, min side >= 4)")
+        if problems:
+            raise UnknownPresetError("invalid scale filter parameters: " + "; ".join(problems))
 
 
 @dataclass(frozen=True)
@@ -90,13 +108,37 @@ class TrackerParams:
 
     def __post_init__(self) -> None:
         problems = []
+        for name in (
+            "learning_rate", "gamma", "admm_lambda", "mu_init", "mu_scale_step", "mu_max",
+            "search_area_scale", "output_sigma_factor", "filter_max_area",
+            "cell_selection_thresh", "min_image_sample_size", "max_image_sample_size",
+            "scale_step",
+        ):
+            if not math.isfinite(getattr(self, name)):
+                problems.append(f"{name} must be a finite number")
+        if not self.mu_init > 0 or not self.mu_max >= self.mu_init or not self.mu_scale_step >= 1:
+            problems.append("mu schedule needs mu_init > 0, mu_scale_step >= 1, mu_max >= mu_init")
+        if not self.search_area_scale >= 1:
+            problems.append("search_area_scale must be >= 1")
+        if not self.output_sigma_factor > 0:
+            problems.append("output_sigma_factor must be > 0")
+        if not self.filter_max_area >= 16:
+            problems.append("filter_max_area must be >= 16 cells")
+        if not self.cell_selection_thresh > 0:
+            problems.append("cell_selection_thresh must be > 0")
+        if not 0 < self.min_image_sample_size <= self.max_image_sample_size:
+            problems.append("need 0 < min_image_sample_size <= max_image_sample_size")
+        if not self.scale_step > 1:
+            problems.append("scale_step must be > 1")
+        if self.newton_iterations < 0:
+            problems.append("newton_iterations must be >= 0")
         if self.admm_iterations < 1:
             problems.append("admm_iterations must be >= 1")
         if not 0.0 < self.learning_rate <= 1.0:
             problems.append("learning_rate must be in (0, 1]")
-        if self.gamma < 0:
+        if not self.gamma >= 0:
             problems.append("gamma must be >= 0")
-        if self.admm_lambda < 0:
+        if not self.admm_lambda >= 0:
             problems.append("admm_lambda must be >= 0")
         if self.cell_size < 1:
             problems.append("cell_size must be >= 1")
@@ -165,7 +207,15 @@ def make_params(preset: str | TrackerParams, **overrides: Any) -> TrackerParams:
         )
     sf = overrides.get("scale_filter")
     if isinstance(sf, dict):
+        sf_names = {f.name for f in dataclasses.fields(ScaleFilterParams)}
+        bad = sorted(set(sf) - sf_names)
+        if bad:
+            raise UnknownPresetError(
+                f"unknown scale_filter parameter(s) {bad}; valid: {sorted(sf_names)}"
+            )
         overrides["scale_filter"] = dataclasses.replace(base.scale_filter, **sf)
+    elif sf is not None and not isinstance(sf, ScaleFilterParams):
+        raise UnknownPresetError("scale_filter must be a ScaleFilterParams or a dict of its fields")
     if "features" in overrides:
         overrides["features"] = tuple(overrides["features"])
     return dataclasses.replace(base, **overrides) if overrides else base

@@ -78,7 +78,20 @@ class ARCFTracker:
         return self._initialized
 
     def init(self, frame: np.ndarray, box: Box | Any) -> TrackResult:
-        """Start (or restart) tracking ``box`` in ``frame``; returns the first frame's result."""
+        """Start (or restart) tracking ``box`` in ``frame``; returns the first frame's result.
+
+        A failed (re-)initialisation leaves the tracker exactly as it was, so a bad request on a
+        live stream does not break the target already being tracked.
+        """
+        snapshot = dict(self.__dict__)
+        try:
+            return self._init(frame, box)
+        except BaseException:
+            self.__dict__.clear()
+            self.__dict__.update(snapshot)
+            raise
+
+    def _init(self, frame: np.ndarray, box: Box | Any) -> TrackResult:
         image, color = self._frame_for_init(frame)
         x, y, w, h = validate_box(box, image.shape[:2])
         self._color = color
@@ -363,6 +376,8 @@ def validate_box(box: Any, image_hw: tuple[int, int]) -> Box:
     A box may stick out of the frame (patches replicate the border), but it must overlap it, be
     at least one pixel in each direction, and not be more than 4x the frame in either direction.
     """
+    if isinstance(box, (str, bytes, bytearray)):
+        raise InvalidBoxError(f"box must be four numbers (x, y, w, h), got the string {box!r}")
     try:
         values = [float(v) for v in box]
     except (TypeError, ValueError) as exc:

@@ -26,11 +26,11 @@ from pathlib import Path
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import numpy as np  # noqa: E402
+import numpy as np
 
-from arcf.data import data_root  # noqa: E402
-from arcf.eval import load_dataset, read_results, score_sequence, write_results  # noqa: E402
-from arcf.eval.metrics import centers  # noqa: E402
+from arcf.data import data_root
+from arcf.eval import load_dataset, read_results, score_sequence, write_results
+from arcf.eval.metrics import centers
 
 DATASETS = {"uav123_10fps": "UAV123_10fps", "dtb70": "DTB70", "uavdt": "UAVDT"}
 CONFIGS = {

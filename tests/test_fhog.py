@@ -1,15 +1,19 @@
 """Tests of ``arcf.features.fhog`` against a slow reference written straight from the spec.
 
 The reference follows Dollár's toolbox ``fhog`` (gradientMag + gradientHist with softBin=-1,
-useHog=2) literally: per-pixel loops / ``np.add.at`` scatter, float64 ``atan2`` and explicit
-per-cell block normalisation, so that it is easy to check by reading.
+useHog=2) literally: per-pixel ``np.add.at`` scatter, float64 ``atan2`` (in degrees, see
+``_ref_angle_degrees``) and explicit per-cell loops for the block normalisation, so that it is
+easy to check by reading.
 """
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
+
 import numpy as np
 import pytest
 
+import arcf.features.fhog as fhog_module
 from arcf.features.fhog import _orientation_bins, fhog
 
 RNG = np.random.default_rng(12345)
@@ -47,9 +51,7 @@ def _ref_angle_degrees(gx: np.ndarray, gy: np.ndarray) -> np.ndarray:
     return theta
 
 
-def ref_fhog(
-    image: np.ndarray, cell: int = 4, n_orients: int = 9, clip: float = 0.2
-) -> np.ndarray:
+def ref_fhog(image: np.ndarray, cell: int = 4, n_orients: int = 9, clip: float = 0.2) -> np.ndarray:
     """One (H, W) or (H, W, C) image -> (H // cell, W // cell, 3 n + 4), per the spec."""
     img = np.asarray(image, np.float32)
     if img.ndim == 2:
@@ -183,6 +185,15 @@ def test_batch_matches_single_calls() -> None:
         assert_close(out[i], ref_fhog(imgs[i]))
 
 
+def test_batch_split_into_chunks(monkeypatch: pytest.MonkeyPatch) -> None:
+    imgs = random_image((7, 30, 26, 3))
+    whole = fhog(imgs, 3)
+    # 780 px per image: chunks of 2 images and a last one of 1.
+    monkeypatch.setattr(fhog_module, "_CHUNK_PIXELS", 1600)
+    np.testing.assert_array_equal(fhog(imgs, 3), whole)
+    assert_close(whole[6], ref_fhog(imgs[6], 3))
+
+
 def test_batch_of_tiny_patches_small_cells() -> None:
     imgs = random_image((33, 32, 16, 3))
     for cell in (1, 2, 3, 4):
@@ -200,7 +211,19 @@ def test_multiple_leading_dims_and_grey_batch() -> None:
 
 
 @pytest.mark.parametrize(
-    ("shape", "cell"), [((4, 20), 4), ((22, 5), 4), ((7, 7), 4), ((1, 9), 1), ((3, 2), 1)]
+    ("shape", "cell"),
+    [
+        ((4, 20), 4),
+        ((22, 5), 4),
+        ((7, 7), 4),
+        ((1, 9), 1),
+        ((3, 2), 1),
+        ((12, 4), 2),
+        ((4, 12), 1),
+        ((5, 3), 1),
+        ((3, 5), 1),
+        ((1, 1), 1),
+    ],
 )
 def test_single_row_or_column_of_cells(shape: tuple[int, int], cell: int) -> None:
     img = random_image(shape)
@@ -222,6 +245,29 @@ def test_input_layout_rules() -> None:
         fhog(random_image((4, 20, 24)))  # ambiguous: use (N, H, W, 1) for a grey batch
     with pytest.raises(ValueError):
         fhog(random_image((24,)))
+
+
+def test_reused_buffers_across_shapes_and_threads() -> None:
+    # The implementation keeps per-thread scratch buffers; interleave shapes and threads.
+    inputs = [
+        random_image((3, 64, 48, 3)),
+        random_image((20, 28)),
+        random_image((33, 32, 16, 3)),
+        random_image((1, 64, 48, 3)),
+    ]
+    cells = [4, 2, 3, 4]
+    expected = [fhog(x, c).copy() for x, c in zip(inputs, cells, strict=True)]
+    with ThreadPoolExecutor(max_workers=4) as pool:
+        for _ in range(3):
+            results = list(pool.map(fhog, inputs * 2, cells * 2))
+            for got, want in zip(results, expected * 2, strict=True):
+                np.testing.assert_array_equal(got, want)
+    # Returned arrays never alias the scratch buffers.
+    first = fhog(inputs[0], 4)
+    snapshot = first.copy()
+    fhog(inputs[2], 3)
+    fhog(inputs[0][:, ::-1], 4)
+    np.testing.assert_array_equal(first, snapshot)
 
 
 # --------------------------------------------------------------------------------------------
@@ -303,9 +349,7 @@ def test_constant_image_gives_zeros() -> None:
 )
 def test_ramp_energy_in_expected_bins(ramp: str, sensitive: int, insensitive: int) -> None:
     y, x = np.mgrid[0:40, 0:48].astype(np.float32)
-    img = {"right": 2 * x, "left": 2 * (47 - x), "down": 3 * y, "up": 3 * (39 - y)}.get(
-        ramp, x + y
-    )
+    img = {"right": 2 * x, "left": 2 * (47 - x), "down": 3 * y, "up": 3 * (39 - y)}.get(ramp, x + y)
     out = fhog(img, 4)
     assert (out[..., sensitive] > 0.05).all()
     assert (out[..., 18 + insensitive] > 0.05).all()

@@ -1,0 +1,543 @@
+"""Pixel features, feature stacking, patch sampling and the Fourier helpers.
+
+fHOG itself is covered by ``test_fhog.py``; here: the grayscale and Color Names channels, the
+FeatureExtractor's block layout, BACF/ECO patch sampling with border replication, the Gaussian
+label, Newton's sub-cell peak search and the (non-)Hermitian inverse FFT.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import scipy.fft as sfft
+
+from arcf.data import default_colornames_path
+from arcf.errors import ColorNamesNotFoundError
+from arcf.features.extract import CHANNELS, FeatureExtractor
+from arcf.features.fhog import fhog
+from arcf.features.patches import bacf_patch, crop_replicate, eco_patch, matlab_round, resize_auto
+from arcf.features.pixel import ColorNames, cell_average, gray_features
+from arcf.fourier import (
+    gaussian_label,
+    newton_peak,
+    peak_to_sidelobe,
+    signed_indices,
+    spatial_response,
+)
+from arcf.presets import ARCF_H, ARCF_HC
+
+# --------------------------------------------------------------------------- helpers
+
+
+def cn_index(r: int, g: int, b: int) -> int:
+    """The documented Color Names row of an RGB pixel."""
+    return r // 8 + 32 * (g // 8) + 1024 * (b // 8)
+
+
+@pytest.fixture()
+def index_table(tmp_path: Path) -> Path:
+    """A fake 32768x10 table whose row i encodes i, so a lookup reveals the row it used."""
+    i = np.arange(32768, dtype=np.float32)
+    table = np.stack([i, i % 32, (i // 32) % 32, i // 1024] + [np.full_like(i, 0.5)] * 6, axis=1)
+    path = tmp_path / "cn_norm_32768x10.npy"
+    np.save(path, table.astype(np.float32))
+    return path
+
+
+def real_table() -> Path:
+    path = default_colornames_path()
+    if not path.is_file():
+        pytest.skip(f"Color Names table not found: {path} (set ARCF_DATA or ARCF_COLORNAMES)")
+    return path
+
+
+def coord_image(h: int, w: int) -> np.ndarray:
+    """uint8 image whose channel 0 holds the row index and channel 1 the column index."""
+    rows, cols = np.mgrid[0:h, 0:w]
+    return np.stack([rows, cols], axis=-1).astype(np.uint8)
+
+
+# --------------------------------------------------------------------------- gray / cells
+
+
+def test_gray_feature_is_cell_mean_of_gray_over_255_minus_half() -> None:
+    patch = np.zeros((8, 8), np.uint8)
+    patch[:4, :4] = 255  # -> +0.5
+    patch[:4, 4:] = 0  # -> -0.5
+    patch[4:, :4] = np.array([[0, 255, 0, 255]] * 4)  # mean 127.5/255 - 0.5 = 0
+    patch[4:, 4:] = 51  # 0.2 - 0.5 = -0.3
+    out = gray_features(patch[None, ..., None], 4)
+    assert out.shape == (1, 2, 2, 1) and out.dtype == np.float32
+    np.testing.assert_allclose(out[0, ..., 0], [[0.5, -0.5], [0.0, -0.3]], atol=1e-6)
+
+
+def test_gray_feature_arbitrary_values_and_cells() -> None:
+    rng = np.random.default_rng(1)
+    patch = rng.integers(0, 256, size=(2, 11, 14, 1), dtype=np.uint8)
+    for cell in (1, 2, 3, 4):
+        out = gray_features(patch, cell)
+        hb, wb = 11 // cell, 14 // cell
+        assert out.shape == (2, hb, wb, 1)
+        g = patch[:, : hb * cell, : wb * cell, 0].astype(np.float64) / 255 - 0.5
+        expected = g.reshape(2, hb, cell, wb, cell).mean(axis=(2, 4))
+        np.testing.assert_allclose(out[..., 0], expected, atol=1e-6)
+
+
+def test_gray_feature_of_a_colour_patch_uses_rgb2gray_weights() -> None:
+    b, g, r = 10, 200, 90  # 0.299 R + 0.587 G + 0.114 B = 145.45 -> 145
+    patch = np.empty((1, 8, 12, 3), np.uint8)
+    patch[...] = (b, g, r)
+    out = gray_features(patch, 4)
+    assert out.shape == (1, 2, 3, 1)
+    np.testing.assert_allclose(out, 145 / 255 - 0.5, atol=1e-6)
+    # a BGR patch is not read as RGB: swapping R and B gives another value
+    swapped = np.ascontiguousarray(patch[..., ::-1])
+    assert not np.allclose(gray_features(swapped, 4), out)
+
+
+@pytest.mark.parametrize(
+    ("shape", "cell", "grid"),
+    [
+        ((1, 10, 13, 2), 4, (2, 3)),
+        ((3, 8, 8, 1), 4, (2, 2)),
+        ((1, 7, 5, 3), 2, (3, 2)),
+        ((1, 3, 3, 1), 4, (0, 0)),
+        ((2, 5, 9, 4), 1, (5, 9)),
+    ],
+)
+def test_cell_average_floors_the_grid(shape: tuple, cell: int, grid: tuple) -> None:
+    maps = np.random.default_rng(0).random(shape).astype(np.float32)
+    out = cell_average(maps, cell)
+    assert out.shape == (shape[0], *grid, shape[3])
+    for i in range(grid[0]):
+        for j in range(grid[1]):
+            block = maps[:, i * cell : (i + 1) * cell, j * cell : (j + 1) * cell]
+            np.testing.assert_allclose(out[:, i, j], block.mean(axis=(1, 2)), rtol=1e-6)
+
+
+# --------------------------------------------------------------------------- Color Names
+
+
+def test_colornames_index_from_bgr_frames(index_table: Path) -> None:
+    cn = ColorNames(index_table)
+    b, g, r = 200, 100, 37
+    patch = np.empty((1, 8, 8, 3), np.uint8)
+    patch[...] = (b, g, r)  # OpenCV order
+    out = cn(patch, 4)
+    assert out.shape == (1, 2, 2, 10) and out.dtype == np.float32
+    idx = cn_index(r, g, b)
+    assert idx == 4 + 32 * 12 + 1024 * 25
+    np.testing.assert_array_equal(out[..., 0], idx)
+    np.testing.assert_array_equal(
+        out[..., 1:4], np.broadcast_to([r // 8, g // 8, b // 8], (1, 2, 2, 3))
+    )
+    assert idx != cn_index(b, g, r)  # the RGB/BGR mix-up would be caught
+
+
+def test_colornames_every_bin_boundary(index_table: Path) -> None:
+    cn = ColorNames(index_table)
+    values = np.array([0, 7, 8, 15, 16, 127, 128, 247, 248, 255], np.uint8)
+    r, g, b = np.meshgrid(values, values, values, indexing="ij")
+    bgr = np.stack([b.ravel(), g.ravel(), r.ravel()], axis=-1)[None, None]  # (1, 1, n, 3)
+    out = cn(bgr, 1)[0, 0, :, 0]
+    expected = [
+        cn_index(int(x), int(y), int(z))
+        for x, y, z in zip(r.ravel(), g.ravel(), b.ravel(), strict=True)
+    ]
+    np.testing.assert_array_equal(out, expected)
+
+
+def test_colornames_cell_mean_of_table_rows(index_table: Path) -> None:
+    cn = ColorNames(index_table)
+    patch = np.zeros((1, 4, 8, 3), np.uint8)
+    patch[0, :, :4] = (0, 0, 255)  # red -> row 31
+    patch[0, :, 4:6] = (255, 0, 0)  # blue -> row 31744
+    patch[0, :, 6:] = (0, 255, 0)  # green -> row 992
+    out = cn(patch, 4)
+    assert out.shape == (1, 1, 2, 10)
+    assert out[0, 0, 0, 0] == 31
+    assert out[0, 0, 1, 0] == pytest.approx((31744 + 992) / 2)
+
+
+def test_colornames_real_table_row() -> None:
+    path = real_table()
+    table = np.load(path)
+    assert table.shape == (32768, 10)
+    cn = ColorNames(path)
+    rng = np.random.default_rng(5)
+    for b, g, r in rng.integers(0, 256, size=(5, 3)):
+        patch = np.empty((1, 4, 4, 3), np.uint8)
+        patch[...] = (b, g, r)
+        out = cn(patch, 4)[0, 0, 0]
+        np.testing.assert_allclose(out, table[cn_index(int(r), int(g), int(b))], rtol=1e-6)
+
+
+def test_colornames_missing_file(tmp_path: Path) -> None:
+    missing = tmp_path / "absent.npy"
+    with pytest.raises(ColorNamesNotFoundError, match=r"cn_norm_32768x10\.npy") as info:
+        ColorNames(missing)
+    assert "ARCF_COLORNAMES" in str(info.value) and str(missing) in str(info.value)
+
+
+# --------------------------------------------------------------------------- FeatureExtractor
+
+
+@pytest.mark.parametrize(
+    ("kinds", "color", "channels"),
+    [
+        (ARCF_HC.features, True, 42),
+        (ARCF_HC.features, False, 32),
+        (ARCF_H.features, True, 31),
+        (ARCF_H.features, False, 31),
+        (("gray",), True, 1),
+        (("cn",), True, 10),
+    ],
+)
+def test_extractor_channel_counts_and_layout(
+    kinds: tuple[str, ...], color: bool, channels: int, index_table: Path
+) -> None:
+    fx = FeatureExtractor(kinds, 4, str(index_table))
+    assert fx.channels(color) == channels
+    rng = np.random.default_rng(2)
+    c = 3 if color else 1
+    patches = rng.integers(0, 256, size=(3, 50, 42, c), dtype=np.uint8)
+    out = fx(patches, color)
+    assert out.shape == (3, channels, 50 // 4, 42 // 4)
+    assert out.dtype == np.float32 and out.flags.c_contiguous
+
+
+def test_extractor_block_order(index_table: Path) -> None:
+    rng = np.random.default_rng(3)
+    patches = rng.integers(0, 256, size=(2, 40, 36, 3), dtype=np.uint8)
+    out = FeatureExtractor(("gray", "fhog", "cn"), 4, str(index_table))(patches, True)
+    assert sum(CHANNELS.values()) == 42
+    np.testing.assert_array_equal(out[:, 0], gray_features(patches, 4)[..., 0])
+    np.testing.assert_array_equal(out[:, 1:32], fhog(patches, 4).transpose(0, 3, 1, 2))
+    np.testing.assert_array_equal(
+        out[:, 32:], ColorNames(index_table)(patches, 4).transpose(0, 3, 1, 2)
+    )
+    # gray frames skip the Color Names block
+    g = np.stack([cv2.cvtColor(p, cv2.COLOR_BGR2GRAY) for p in patches])[..., None]
+    out_g = FeatureExtractor(("gray", "fhog", "cn"), 4, "/nonexistent.npy")(g, False)
+    assert out_g.shape == (2, 32, 10, 9)
+    np.testing.assert_array_equal(out_g[:, 0], gray_features(g, 4)[..., 0])
+
+
+def test_extractor_loads_the_table_only_for_colour(tmp_path: Path) -> None:
+    fx = FeatureExtractor(("gray", "fhog", "cn"), 4, str(tmp_path / "missing.npy"))
+    fx.prepare(False)  # fine: gray frames do not need the table
+    with pytest.raises(ColorNamesNotFoundError):
+        fx.prepare(True)
+    FeatureExtractor(("fhog",), 4, str(tmp_path / "missing.npy")).prepare(True)
+
+
+# --------------------------------------------------------------------------- patches
+
+SMALL = np.random.default_rng(4).integers(0, 256, size=(7, 9, 3), dtype=np.uint8)
+PAD = 30
+
+
+def padded_window(image: np.ndarray, top: int, left: int, h: int, w: int) -> np.ndarray:
+    widths = ((PAD, PAD), (PAD, PAD)) + ((0, 0),) * (image.ndim - 2)
+    big = np.pad(image, widths, mode="edge")
+    return big[top + PAD : top + PAD + h, left + PAD : left + PAD + w]
+
+
+WINDOWS = [
+    (1, 2, 4, 5),  # inside
+    (0, 0, 7, 9),  # the whole image
+    (-3, 2, 6, 4),  # above
+    (4, 2, 6, 4),  # below
+    (2, -4, 3, 6),  # left
+    (2, 6, 3, 6),  # right
+    (-2, -3, 12, 15),  # larger than the image on every side
+    (-10, -10, 4, 4),  # entirely outside, up-left
+    (9, 12, 3, 2),  # entirely outside, down-right
+    (-6, 3, 2, 2),  # entirely above
+    (3, 11, 2, 3),  # entirely right
+]
+
+
+@pytest.mark.parametrize("window", WINDOWS)
+@pytest.mark.parametrize("channels", [3, 1, 0])
+def test_crop_replicate_matches_edge_padding(
+    window: tuple[int, int, int, int], channels: int
+) -> None:
+    image = SMALL if channels == 3 else SMALL[..., :1] if channels == 1 else SMALL[..., 0]
+    image = np.ascontiguousarray(image)
+    out = crop_replicate(image, *window)
+    expected = padded_window(image, *window)
+    assert out.shape == expected.shape
+    np.testing.assert_array_equal(out, expected)
+
+
+@pytest.mark.parametrize(
+    ("pos", "size"),
+    [
+        ((10.7, 20.2), (5, 6)),
+        ((10.0, 20.0), (4, 4)),
+        ((1.0, 1.0), (7, 8)),
+        ((30.9, 40.5), (9, 3)),
+        ((-2.5, 44.0), (6, 6)),
+        ((5.0, 5.0), (0, 1)),
+    ],
+)
+def test_bacf_patch_window_placement(pos: tuple[float, float], size: tuple[int, int]) -> None:
+    """1-based rows floor(pos) + (1..s) - floor(s/2): first array index floor(pos) - floor(s/2);
+    outside the image the border is replicated; sizes < 1 become 2 (release)."""
+    image = coord_image(32, 45)
+    sh, sw = (s if s >= 1 else 2 for s in size)
+    out = bacf_patch(image, pos, size, (sh, sw))  # same size: no resampling
+    top = math.floor(pos[0]) - sh // 2
+    left = math.floor(pos[1]) - sw // 2
+    rows = np.clip(np.arange(top, top + sh), 0, 31)
+    cols = np.clip(np.arange(left, left + sw), 0, 44)
+    np.testing.assert_array_equal(out[..., 0], np.broadcast_to(rows[:, None], (sh, sw)))
+    np.testing.assert_array_equal(out[..., 1], np.broadcast_to(cols[None, :], (sh, sw)))
+    np.testing.assert_array_equal(out, padded_window(image, top, left, sh, sw))
+
+
+def test_bacf_patch_centre_pixel() -> None:
+    """An odd window is centred on array index (floor(row), floor(col)), i.e. one pixel past the
+    1-based position, exactly as the release's ``get_pixels``."""
+    image = coord_image(40, 40)
+    out = bacf_patch(image, (12.9, 20.3), (5, 5), (5, 5))
+    # 1-based rows 12 + (1..5) - 2 = 11..15: the centre is 1-based 13, i.e. array index 12
+    assert tuple(out[2, 2]) == (12, 20)
+
+
+def test_bacf_patch_resizes_with_area_or_linear() -> None:
+    rng = np.random.default_rng(6)
+    image = rng.integers(0, 256, size=(60, 80, 3), dtype=np.uint8)
+    window = crop_replicate(image, 30 - 10, 40 - 12, 20, 24)
+    shrunk = bacf_patch(image, (30.0, 40.0), (20, 24), (10, 12))
+    np.testing.assert_array_equal(
+        shrunk, cv2.resize(window, (12, 10), interpolation=cv2.INTER_AREA)
+    )
+    grown = bacf_patch(image, (30.0, 40.0), (20, 24), (30, 36))
+    np.testing.assert_array_equal(
+        grown, cv2.resize(window, (36, 30), interpolation=cv2.INTER_LINEAR)
+    )
+    gray = np.ascontiguousarray(image[..., :1])
+    assert bacf_patch(gray, (30.0, 40.0), (20, 24), (10, 12)).shape == (10, 12, 1)
+
+
+@pytest.mark.parametrize(
+    ("pos", "sample"),
+    [((10.0, 20.0), 5.0), ((10.6, 20.4), 6.0), ((1.0, 44.0), 7.4), ((-3.0, 2.0), 4.5)],
+)
+def test_eco_patch_window_placement(pos: tuple[float, float], sample: float) -> None:
+    """ECO's sample_patch: s = round(sample); 1-based rows floor(pos) + (1..s) - floor((s+1)/2)."""
+    image = coord_image(32, 45)
+    s = matlab_round(sample)
+    out = eco_patch(image, pos, (sample, sample), (s, s))
+    top = math.floor(pos[0]) - (s + 1) // 2
+    left = math.floor(pos[1]) - (s + 1) // 2
+    np.testing.assert_array_equal(out, padded_window(image, top, left, s, s))
+    if s % 2 == 1:  # odd windows are centred on the position's pixel
+        c = s // 2
+        assert tuple(out[c, c]) == (
+            min(max(math.floor(pos[0]) - 1, 0), 31),
+            min(max(math.floor(pos[1]) - 1, 0), 44),
+        )
+
+
+def eco_reference(
+    image: np.ndarray, pos: tuple[float, float], sample: float, out: int
+) -> np.ndarray:
+    """ECO's sample_patch written out in MATLAB's 1-based terms (no shortcuts)."""
+    pos1 = np.floor(np.array(pos))
+    sample_sz = np.array([sample, sample])
+    resize_factor = min(sample / out, sample / out)
+    df = max(math.floor(resize_factor - 0.1), 1)
+    im = image
+    if df > 1:
+        os_ = np.mod(pos1 - 1, df)
+        im = image[int(os_[0]) :: df, int(os_[1]) :: df]  # im(os+1:df:end, ...)
+        pos1 = (pos1 - 1 - os_) / df + 1
+        sample_sz = sample_sz / df
+    sz = np.maximum(np.array([matlab_round(v) for v in sample_sz]), 2)
+    ys = pos1[0] + np.arange(1, sz[0] + 1) - np.floor((sz[0] + 1) / 2)
+    xs = pos1[1] + np.arange(1, sz[1] + 1) - np.floor((sz[1] + 1) / 2)
+    ys = np.clip(ys, 1, im.shape[0]).astype(int) - 1
+    xs = np.clip(xs, 1, im.shape[1]).astype(int) - 1
+    return resize_auto(im[np.ix_(ys, xs)], (out, out))
+
+
+@pytest.mark.parametrize(
+    ("pos", "sample", "out", "df"),
+    [
+        ((60.0, 70.0), 40.0, 20, 1),  # factor 2.0: no decimation
+        ((60.0, 70.0), 41.0, 20, 1),  # factor 2.05 < 2.1: none
+        ((60.0, 70.0), 45.0, 20, 2),  # factor 2.25: every 2nd pixel
+        ((61.3, 70.8), 90.0, 20, 4),  # factor 4.5: every 4th
+        ((3.0, 118.0), 70.0, 20, 3),  # near the border: decimated grid replicated
+        ((100.0, 5.5), 200.0, 30, 6),  # window larger than the image
+    ],
+)
+def test_eco_patch_decimation(pos: tuple[float, float], sample: float, out: int, df: int) -> None:
+    rng = np.random.default_rng(7)
+    image = rng.integers(0, 256, size=(110, 120, 3), dtype=np.uint8)
+    assert max(math.floor(sample / out - 0.1), 1) == df
+    patch = eco_patch(image, pos, (sample, sample), (out, out))
+    assert patch.shape == (out, out, 3)
+    np.testing.assert_array_equal(patch, eco_reference(image, pos, sample, out))
+    if df > 1:
+        # the decimated grid keeps the phase of the position's pixel: on an image that is 255
+        # exactly on the rows (channel 0) / columns (channel 1) congruent to it modulo df, and 0
+        # elsewhere, every sample of the patch (before and after resizing) is 255
+        rows, cols = np.mgrid[0:110, 0:120]
+        r0, c0 = math.floor(pos[0]) - 1, math.floor(pos[1]) - 1
+        phase = np.stack([(rows - r0) % df == 0, (cols - c0) % df == 0, rows >= 0], axis=-1)
+        on_grid = eco_patch((phase * 255).astype(np.uint8), pos, (sample, sample), (out, out))
+        assert np.all(on_grid == 255)
+
+
+# --------------------------------------------------------------------------- Fourier helpers
+
+
+@pytest.mark.parametrize("shape", [(50, 50), (21, 34), (8, 5)])
+def test_gaussian_label(shape: tuple[int, int]) -> None:
+    sigma = 1.7
+    y = gaussian_label(shape, sigma)
+    assert y.shape == shape and y.dtype == np.float32
+    assert y[0, 0] == 1.0 and np.unravel_index(np.argmax(y), shape) == (0, 0)
+    # circularly symmetric about the origin: y[k] == y[-k]
+    mirrored = np.roll(y[::-1, ::-1], (1, 1), axis=(0, 1))
+    np.testing.assert_array_equal(y, mirrored)
+    np.testing.assert_allclose(y[1, 0], math.exp(-0.5 / sigma**2), rtol=1e-6)
+    np.testing.assert_allclose(y[-2, 2], math.exp(-0.5 * 8 / sigma**2), rtol=1e-6)
+    rs, cs = signed_indices(shape[0]), signed_indices(shape[1])
+    expected = np.exp(-0.5 * (rs[:, None] ** 2 + cs[None, :] ** 2) / sigma**2)
+    np.testing.assert_allclose(y, expected, rtol=1e-6, atol=1e-30)
+    # symmetric, hence a real spectrum
+    spectrum = sfft.fft2(y.astype(np.float64))
+    assert np.abs(spectrum.imag).max() < 1e-9 * np.abs(spectrum).max()
+
+
+def test_signed_indices() -> None:
+    assert signed_indices(5).tolist() == [0, 1, 2, -2, -1]
+    assert signed_indices(4).tolist() == [0, 1, 2, -1]
+    assert signed_indices(1).tolist() == [0]
+
+
+def von_mises_map(
+    shape: tuple[int, int], peak: tuple[float, float], amp: float, kappa: float = 12.0
+) -> np.ndarray:
+    """A smooth periodic bump with its (off-grid) maximum ``amp`` at ``peak`` (cells)."""
+    h, w = shape
+    r = np.arange(h)[:, None]
+    c = np.arange(w)[None, :]
+    return amp * np.exp(
+        kappa * (np.cos(2 * np.pi * (r - peak[0]) / h) - 1)
+        + kappa * (np.cos(2 * np.pi * (c - peak[1]) / w) - 1)
+    )
+
+
+@pytest.mark.parametrize(
+    ("shape", "peak"),
+    [
+        ((50, 50), (3.3, -2.6)),
+        ((50, 50), (0.45, 0.0)),
+        ((41, 36), (-7.8, 12.25)),
+        ((50, 50), (24.4, -24.7)),
+    ],
+)
+@pytest.mark.parametrize("iterations", [5, 50])
+def test_newton_peak_finds_the_sub_cell_maximum(
+    shape: tuple[int, int], peak: tuple[float, float], iterations: int
+) -> None:
+    m = von_mises_map(shape, peak, amp=0.8)
+    dr, dc, sind, value = newton_peak(m[None], sfft.fft2(m)[None], iterations)
+    assert sind == 0
+    # displacements are wrapped into [-n/2, n/2)
+    exp_r = (peak[0] + shape[0] / 2) % shape[0] - shape[0] / 2
+    exp_c = (peak[1] + shape[1] / 2) % shape[1] - shape[1] / 2
+    assert abs(dr - exp_r) < 0.05 and abs(dc - exp_c) < 0.05, (dr, dc, peak)
+    assert value == pytest.approx(0.8, rel=1e-3)
+    assert value >= m.max()  # never worse than the integer peak
+
+
+def test_newton_peak_picks_the_best_map() -> None:
+    shape = (40, 40)
+    specs = [((2.3, 5.6), 0.5), ((-6.2, 1.4), 0.9), ((10.7, -3.3), 0.7)]
+    maps = np.stack([von_mises_map(shape, p, a) for p, a in specs])
+    dr, dc, sind, value = newton_peak(maps, sfft.fft2(maps), 50)
+    assert sind == 1
+    assert abs(dr + 6.2) < 0.05 and abs(dc - 1.4) < 0.05
+    assert value == pytest.approx(0.9, rel=1e-3)
+    # a sub-cell maximum beats a map whose integer samples are higher but whose true peak is not
+    on_grid = von_mises_map(shape, (4.0, 4.0), 0.85)
+    off_grid = von_mises_map(shape, (-9.5, 7.5), 0.86)  # integer samples reach only ~0.80
+    assert on_grid.max() > off_grid.max()
+    maps = np.stack([on_grid, off_grid])
+    dr, dc, sind, value = newton_peak(maps, sfft.fft2(maps), 50)
+    assert sind == 1 and abs(dr + 9.5) < 0.05 and abs(dc - 7.5) < 0.05
+
+
+def test_spatial_response_hermitian_is_irfft2() -> None:
+    rng = np.random.default_rng(8)
+    for shape in ((12, 10), (9, 7)):
+        m = rng.standard_normal((3, *shape))
+        half = sfft.rfft2(m)
+        np.testing.assert_allclose(spatial_response(half, shape, True), m, atol=1e-12)
+        np.testing.assert_allclose(spatial_response(half[0], shape, True), m[0], atol=1e-12)
+        np.testing.assert_array_equal(
+            spatial_response(half, shape, True), sfft.irfft2(half, s=shape)
+        )
+
+
+@pytest.mark.parametrize("shape", [(12, 10), (9, 7)])
+def test_spatial_response_non_hermitian_2d_keeps_first_half_of_columns(
+    shape: tuple[int, int],
+) -> None:
+    h, w = shape
+    rng = np.random.default_rng(9)
+    m = rng.standard_normal(shape)
+    spectrum = sfft.fft2(m)
+    garbage = rng.standard_normal(shape) + 1j * rng.standard_normal(shape)
+    # the second half along columns is ignored (MATLAB's ifft2(..., 'symmetric') on a 2-D map)
+    cols = spectrum.copy()
+    cols[:, w // 2 + 1 :] = garbage[:, w // 2 + 1 :]
+    np.testing.assert_allclose(spatial_response(cols, shape, False), m, atol=1e-12)
+    # ... but the second half along rows is used
+    rows = spectrum.copy()
+    rows[h // 2 + 1 :, :] = garbage[h // 2 + 1 :, :]
+    assert not np.allclose(spatial_response(rows, shape, False), m)
+
+
+@pytest.mark.parametrize("shape", [(12, 10), (9, 7)])
+def test_spatial_response_non_hermitian_stack_keeps_first_half_of_rows(
+    shape: tuple[int, int],
+) -> None:
+    h, w = shape
+    rng = np.random.default_rng(10)
+    m = rng.standard_normal((5, *shape))
+    spectrum = sfft.fft2(m)
+    garbage = rng.standard_normal(spectrum.shape) + 1j * rng.standard_normal(spectrum.shape)
+    # for a stack of maps (ARCF-H's scales) the redundant half is taken along the rows
+    rows = spectrum.copy()
+    rows[:, h // 2 + 1 :, :] = garbage[:, h // 2 + 1 :, :]
+    out = spatial_response(rows, shape, False)
+    assert out.shape == m.shape
+    np.testing.assert_allclose(out, m, atol=1e-12)
+    cols = spectrum.copy()
+    cols[:, :, w // 2 + 1 :] = garbage[:, :, w // 2 + 1 :]
+    assert not np.allclose(spatial_response(cols, shape, False), m)
+    # on a Hermitian spectrum both conventions agree with the true inverse
+    np.testing.assert_allclose(spatial_response(spectrum[0], shape, False), m[0], atol=1e-12)
+
+
+def test_peak_to_sidelobe() -> None:
+    m = np.zeros((20, 20))
+    assert peak_to_sidelobe(m, 2) == 0.0  # flat: finite, 0
+    m = np.random.default_rng(11).standard_normal((20, 20)) * 0.01
+    m[19, 0] = 1.0  # the main lobe wraps around the border
+    side = np.ones((20, 20), bool)
+    side[np.ix_([17, 18, 19, 0, 1], [18, 19, 0, 1, 2])] = False
+    expected = (1.0 - m[side].mean()) / m[side].std()
+    assert peak_to_sidelobe(m, 2) == pytest.approx(expected)
