@@ -7,7 +7,7 @@ fresh process, so thread pinning applies before NumPy/SciPy/OpenCV load. CSRT co
 ``opencv-python-headless``: it runs from a separate virtual environment (``--csrt-python``;
 ``--setup-csrt`` creates ``.venv-csrt`` with pip).
 
-    python benchmarks/speed.py --setup-csrt            # all local real sequences, 1 and default threads
+    python benchmarks/speed.py --setup-csrt     # all local sequences, 1 and default threads
     python benchmarks/speed.py --threads 1 --sequences boat1,Animal3
     python benchmarks/speed.py --profile arcf-h --sequences boat1   # where the time goes
 """
