@@ -30,6 +30,8 @@ def map_difference(m_prev_shifted: np.ndarray, m_curr: np.ndarray) -> tuple[floa
     (and the paper's Table 2) contain.
     """
     d = (m_prev_shifted - m_curr).astype(np.float64)
+    if not np.all(np.isfinite(d)):
+        return float("nan"), float("nan")
     frob = float(np.sqrt(np.sum(d * d)))
     spectral = float(np.linalg.norm(d, 2)) if d.size else 0.0
     return frob, spectral

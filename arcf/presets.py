@@ -132,6 +132,18 @@ class TrackerParams:
             problems.append("scale_step must be > 1")
         if self.newton_iterations < 0:
             problems.append("newton_iterations must be >= 0")
+        for name, allowed in (
+            ("scale_mode", ("search", "filter")),
+            ("sampling", ("bacf", "eco")),
+            ("sizing", ("filter_max_area", "sample_area")),
+        ):
+            if getattr(self, name) not in allowed:
+                problems.append(f"{name} must be one of {allowed}, got {getattr(self, name)!r}")
+        for name in ("admm_iterations", "newton_iterations", "cell_size", "n_scales"):
+            if not isinstance(getattr(self, name), int) or isinstance(getattr(self, name), bool):
+                problems.append(f"{name} must be an integer, got {getattr(self, name)!r}")
+        if not self.features:
+            problems.append("features must name at least one of 'gray', 'fhog', 'cn'")
         if self.admm_iterations < 1:
             problems.append("admm_iterations must be >= 1")
         if not 0.0 < self.learning_rate <= 1.0:

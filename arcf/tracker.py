@@ -58,7 +58,12 @@ class TrackResult:
 
     @property
     def confidence(self) -> float:
-        """The response peak: the usual DCF confidence in [0, ~1]."""
+        """The response peak, the usual DCF confidence.
+
+        Its scale is set by the filter's regularisation, not normalised: for these presets it sits
+        around 0.01-0.05 while tracking well. Compare it with the same track's recent history (or
+        use ``psr``, which is scale-free) rather than with a fixed absolute threshold.
+        """
         return self.peak
 
 

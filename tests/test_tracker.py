@@ -627,6 +627,9 @@ def test_invalid_parameter_value(override: dict, words: str) -> None:
         {"scale_filter": {"scale_step": 1.0}},
         {"scale_filter": {"n_scales": 0}},
         {"scale_filter": {"bogus": 1}},
+        {"scale_filter": 5},
+        {"search_area_scale": 0},
+        {"newton_iterations": -1},
     ],
     ids=lambda o: ",".join(f"{k}={v}" for k, v in o.items()),
 )
@@ -634,6 +637,22 @@ def test_invalid_parameter_value_rejected_up_front(override: dict) -> None:
     preset = "arcf-hc" if "scale_filter" in override else "arcf-h"
     with pytest.raises(UnknownPresetError):
         make_params(preset, **override)
+
+
+@pytest.mark.parametrize(
+    "override",
+    [
+        {"features": ()},
+        {"admm_iterations": 2.5},
+        {"sampling": "foo"},
+        {"scale_mode": "foo"},
+        {"sizing": "foo"},
+    ],
+    ids=lambda o: ",".join(f"{k}={v}" for k, v in o.items()),
+)
+def test_invalid_parameter_value_rejected_up_front_more(override: dict) -> None:
+    with pytest.raises(UnknownPresetError):
+        make_params("arcf-h", **override)
 
 
 def test_presets_are_immutable() -> None:
