@@ -80,7 +80,8 @@ def solve_filter(
     shape = crop.grid
     t = float(shape[0] * shape[1])
     x = model_xf
-    s_xx = np.sum((x.real**2 + x.imag**2), axis=0)  # (H, W')
+    xc = np.conj(x)
+    s_xx = np.einsum("dhw,dhw->hw", xc, x).real  # Σ_d |x̂_d|², (H, W')
     y_tilde = yf if target_f is None or gamma == 0 else yf + gamma * np.conj(target_f)
     x_y = x * y_tilde  # x̂ ỹ, (D, H, W')
     sxx_y = s_xx * y_tilde
@@ -102,16 +103,19 @@ def solve_filter(
     for _ in range(iterations):
         # g-step: closed form per frequency (Sherman–Morrison)
         b = s_xx + t * mu / scale
-        s_lx = np.sum(np.conj(x) * l_f, axis=0)
-        s_hx = np.sum(np.conj(x) * h_f, axis=0)
-        g_f = (x_y / (t * mu) - l_f / mu + h_f) - x * (
-            (sxx_y / (t * mu) - s_lx / mu + s_hx) / b
-        )
+        s_lx = np.einsum("dhw,dhw->hw", xc, l_f)
+        s_hx = np.einsum("dhw,dhw->hw", xc, h_f)
+        coef = (sxx_y / (t * mu) - s_lx / mu + s_hx) / b  # (H, W')
+        g_f = x_y * (1.0 / (t * mu))
+        g_f -= l_f * (1.0 / mu)
+        g_f += h_f
+        g_f -= x * coef
         # h-step: closed form in the spatial domain, then BACF's crop
-        h = (t / (mu * t + admm_lambda)) * inv(mu * g_f + l_f)
+        h = inv(mu * g_f + l_f)
+        h *= t / (mu * t + admm_lambda)
         h_f = fwd(crop.apply(h)).astype(x.dtype, copy=False)
         # Lagrange multiplier and penalty
-        l_f = l_f + mu * (g_f - h_f)
+        l_f += mu * (g_f - h_f)
         mu = min(mu_scale_step * mu, mu_max)
     return g_f.astype(x.dtype, copy=False), h_f
 

@@ -188,9 +188,10 @@ def test_batch_matches_single_calls() -> None:
 def test_batch_split_into_chunks(monkeypatch: pytest.MonkeyPatch) -> None:
     imgs = random_image((7, 30, 26, 3))
     whole = fhog(imgs, 3)
-    # 780 px per image: chunks of 2 images and a last one of 1.
-    monkeypatch.setattr(fhog_module, "_CHUNK_PIXELS", 1600)
-    np.testing.assert_array_equal(fhog(imgs, 3), whole)
+    assert fhog_module._chunk_size(30, 26, 10, 8, 9) >= 7  # the call above used one chunk
+    for step in (1, 3):  # chunks of 1 / of 3, 3 and 1 images
+        monkeypatch.setattr(fhog_module, "_chunk_size", lambda *args, step=step: step)
+        np.testing.assert_array_equal(fhog(imgs, 3), whole)
     assert_close(whole[6], ref_fhog(imgs[6], 3))
 
 

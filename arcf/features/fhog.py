@@ -29,7 +29,10 @@ vectorised over pixels *and* over a batch of same-size images:
   vote, so the whole histogram is two ``np.add.at`` scatters over all pixels of the batch;
 * normalisation works on whole orientation planes with one small loop over the 4 normalisers;
 * large intermediates live in per-thread scratch buffers that are reused across calls: fresh
-  multi-100-kB temporaries page-fault on every call, which costs more than the arithmetic.
+  multi-100-kB temporaries page-fault on every call, which costs more than the arithmetic;
+  a batch is processed in chunks whose intermediates fit in the L2 cache.
+
+Cell size 1 (tiny targets) skips spatial interpolation altogether, as the toolbox does.
 """
 
 from __future__ import annotations
@@ -51,8 +54,9 @@ _TEXTURE_WEIGHT = np.float32(0.2357)
 #: Factors turning (I[1] - I[0], I[n-2] - I[n-1]) into the doubled border derivatives.
 _EDGE_SCALE = np.array([2.0, -2.0], np.float32)
 
-#: Pixels per chunk of a batch: keeps the working set (~60 B / pixel) within a 2-4 MB L2 cache.
-_CHUNK_PIXELS = 48_000
+#: Working-set budget per chunk of a batch (bytes), sized for a 2-4 MB L2 cache; see
+#: ``_chunk_size``.
+_CHUNK_BYTES = 3 << 20
 
 #: Dtypes (and channel counts) that ``cv2.split`` handles; others use a strided numpy copy.
 _CV2_SPLIT_DTYPES = (np.uint8, np.uint16, np.int16, np.float32, np.float64)
@@ -100,6 +104,9 @@ def fhog(
         are then computed over 1x2 / 2x1 / 1x1 "blocks" made of the cells that exist (the toolbox
         reads uninitialised/unnormalised values in that case), and the 8/7 border correction is
         applied twice to that row/column, exactly as the toolbox's sequential loops do.
+
+        Thread-safe.  Each calling thread keeps a few MB of scratch buffers alive between calls
+        (sized by the largest chunk it has processed), which is what makes repeated calls fast.
     """
     x = np.asarray(images)
     if x.ndim == 2:
@@ -130,10 +137,7 @@ def fhog(
     n_img = math.prod(lead)
     x = x.reshape(n_img, height, width, channels)
     out = np.empty((n_img, hb, wb, n_out), np.float32)
-    # Vectorised over the batch, but in chunks of about _CHUNK_PIXELS pixels: the ~15
-    # intermediates per pixel then stay in the L2 cache (a batch of five 200x200 patches in
-    # one go is ~1.5x slower per patch than one at a time).
-    step = max(1, _CHUNK_PIXELS // (height * width))
+    step = _chunk_size(height, width, hb, wb, n_orients)
     for i in range(0, n_img, step):
         chunk = x[i : i + step]
         n_chunk = chunk.shape[0]
@@ -145,6 +149,17 @@ def fhog(
         dst = out[i : i + n_chunk].reshape(n_chunk * hb * wb, n_out)
         _normalise(r, n_chunk, hb, wb, cell_size, n_orients, clip, out=dst)
     return out.reshape(*lead, hb, wb, n_out)
+
+
+def _chunk_size(height: int, width: int, hb: int, wb: int, n_orients: int) -> int:
+    """Images per chunk: the batch is vectorised, but in chunks whose intermediates fit in L2.
+
+    Why: a batch of five 200x200 patches in one go was ~1.5x slower per patch than one at a
+    time, and 33 tiny patches at cell size 1 ~2x slower, because the intermediates (~64 B per
+    pixel, ~(16 (3n + 4) + 16 n) B per cell) then spill to L3 / RAM.
+    """
+    per_image = 64 * height * width + (16 * (3 * n_orients + 4) + 16 * n_orients) * hb * wb
+    return max(1, _CHUNK_BYTES // per_image)
 
 
 # --------------------------------------------------------------------------------------------
@@ -441,6 +456,14 @@ def _voting_layout(
     return index, w_top, w_bottom
 
 
+@lru_cache(maxsize=4)
+def _pixel_index(npix: int) -> np.ndarray:
+    """``arange(npix)`` as read-only int32 (cached: used on every cell_size=1 call)."""
+    index = np.arange(npix, dtype=np.int32)
+    index.setflags(write=False)
+    return index
+
+
 def _histogram(
     gx: np.ndarray, gy: np.ndarray, mag2: np.ndarray, cell: int, n_orients: int, out: np.ndarray
 ) -> None:
@@ -453,37 +476,46 @@ def _histogram(
     hb, wb = h0 // cell, w0 // cell
     n_bins = 2 * n_orients
     npix = n_img * h0 * w0
-    plane = n_img * (hb + 1) * (wb + 1)
+    plane = npix if cell == 1 else n_img * (hb + 1) * (wb + 1)
     size = n_bins * plane
     if size + wb + 2 >= 2**31:
         raise ValueError("fhog: batch too large for int32 histogram indices; split it")
-    index, w_top, w_bottom = _voting_layout(n_img, hb, wb, cell)
 
-    # Flat accumulator index: orientation plane (via the code -> bin table) + target cell.
+    # Flat index of each pixel's orientation plane (via the code -> bin table).
     _, table = _orientation_tables(n_orients)
     offsets = table.astype(np.int32) * np.int32(plane)
     code = _orientation_code(gx, gy, n_orients, _scratch("code", gx.shape, np.uint8))
     start = cv2.LUT(
         code.reshape(n_img * h0, w0), offsets, _scratch("start", (n_img * h0, w0), np.int32)
-    )
-    np.add(start.reshape(-1), index, out=start.reshape(-1))  # int32: cheap
-    key = _scratch("key", (npix,), np.intp)
-    np.copyto(key, start.reshape(-1))  # np.add.at is fastest with intp indices
-
-    # Complex votes: real part -> left target column, imaginary part -> right one; the two
-    # target rows are two scatters, the second one shifted by one accumulator row.
+    ).reshape(-1)
     mag = np.sqrt(mag2, out=mag2).reshape(n_img, h0 * w0)  # 2 * M
-    votes = _scratch("votes", (n_img, h0 * w0), np.complex64)
-    acc = _scratch("acc", (size + wb + 2,), np.complex64)
-    acc.view(np.float64).fill(0.0)
-    for row_offset, weights in ((0, w_top), (wb + 1, w_bottom)):
-        np.multiply(mag, weights, out=votes)
-        np.add.at(acc[row_offset:], key, votes.reshape(-1))
 
-    # Cell (i, j) = real part at padded (i + 1, j + 1) + imaginary part at (i + 1, j).
-    total = _scratch("total", (size,), np.float32)
-    np.add(acc.real[1 : size + 1], acc.imag[:size], out=total)
-    np.copyto(out, total.reshape(n_bins, n_img, hb + 1, wb + 1)[:, :, 1:, :wb])
+    if cell == 1:
+        # Every pixel is its own cell (xb = x, no spatial interpolation, as in the toolbox's
+        # bin == 1 branch): a plain scatter, no accumulation needed.
+        np.add(start, _pixel_index(npix), out=start)
+        mag *= np.float32(0.5)
+        out.fill(0.0)
+        out.reshape(-1)[start] = mag.reshape(-1)
+    else:
+        index, w_top, w_bottom = _voting_layout(n_img, hb, wb, cell)
+        np.add(start, index, out=start)  # + first target cell; int32: cheap
+        key = _scratch("key", (npix,), np.intp)
+        np.copyto(key, start)  # np.add.at is fastest with intp indices
+
+        # Complex votes: real part -> left target column, imaginary part -> right one; the
+        # two target rows are two scatters, the second one shifted by one accumulator row.
+        votes = _scratch("votes", (n_img, h0 * w0), np.complex64)
+        acc = _scratch("acc", (size + wb + 2,), np.complex64)
+        acc.view(np.float64).fill(0.0)
+        for row_offset, weights in ((0, w_top), (wb + 1, w_bottom)):
+            np.multiply(mag, weights, out=votes)
+            np.add.at(acc[row_offset:], key, votes.reshape(-1))
+
+        # Cell (i, j) = real part at padded (i + 1, j + 1) + imaginary part at (i + 1, j).
+        total = _scratch("total", (size,), np.float32)
+        np.add(acc.real[1 : size + 1], acc.imag[:size], out=total)
+        np.copyto(out, total.reshape(n_bins, n_img, hb + 1, wb + 1)[:, :, 1:, :wb])
     # Border cells only collect 7/8 of an interior cell's weight: rescale them, sequentially
     # like the toolbox, so a single row / column gets the factor twice.
     s = np.float32(8.0 / 7.0)
@@ -558,15 +590,14 @@ def _normalise(
     for k, nk in enumerate(normalisers):
         np.copyto(nk_flat.reshape(n_img, hb, wb), nk)
         # min(R * n_k, clip) / 2, in OpenCV: numpy's broadcasting multiply and np.minimum
-        # are 2-3x slower on these shapes.
+        # are 2-3x slower on these shapes.  The first term goes straight into the sum.
+        t = acc if k == 0 else tmp
         cv2.repeat(nk_flat, 3 * n, 1, nk_rows)
-        cv2.multiply(r, nk_rows, tmp)
-        cv2.threshold(tmp, half_clip, half_clip, cv2.THRESH_TRUNC, tmp)
-        if k == 0:
-            np.copyto(acc, tmp)
-        else:
-            np.add(acc, tmp, out=acc)
-        cv2.reduce(tmp[:n_bins], 0, cv2.REDUCE_SUM, planar[3 * n + k : 3 * n + k + 1])
+        cv2.multiply(r, nk_rows, t)
+        cv2.threshold(t, half_clip, half_clip, cv2.THRESH_TRUNC, t)
+        cv2.reduce(t[:n_bins], 0, cv2.REDUCE_SUM, planar[3 * n + k : 3 * n + k + 1])
+        if k > 0:
+            cv2.add(acc, tmp, acc)
     planar[3 * n :] *= np.float32(2.0) * _TEXTURE_WEIGHT
     transposed = cv2.transpose(planar, out)  # channels last, written in place
     if transposed is not out:  # cannot happen for a matching contiguous float32 array
