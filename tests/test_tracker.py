@@ -293,8 +293,11 @@ def test_paper_and_release_aberrance_formulations(preset: str) -> None:
             assert all(math.isfinite(v) for v in (*r.box, r.peak, r.psr, r.aberrance))
             assert math.isfinite(r.aberrance_release)
         assert centre_errors(results, gt).max() < 3.0
-    # the first frame's filter has no aberrance target, so the two agree there ...
-    assert paper[0] == release[0]
+    # the first frame's filter has no aberrance target, so the two agree there (up to float32
+    # rounding: half- and full-spectrum solves sum in a different order) ...
+    assert paper[0].box == release[0].box
+    assert paper[0].peak == pytest.approx(release[0].peak, rel=1e-4)
+    assert paper[0].psr == pytest.approx(release[0].psr, rel=1e-3)
     # ... and differ slightly afterwards
     pa = np.array([r.peak for r in paper[1:]])
     pr = np.array([r.peak for r in release[1:]])
