@@ -87,6 +87,11 @@ class TrackerParams:
     #: Aberrance term: "paper" uses the DFT of the shifted previous map (Eq. 5); "release" feeds
     #: the spatial map into the Fourier-domain formula as the authors' code does.
     aberrance: AberranceMode = "paper"
+    #: Scale each feature sample to unit mean energy per element, as ECO/STRCF's
+    #: ``extract_features`` does (``normalize_power = 2``, ``normalize_size``, ``normalize_dim``).
+    #: Off in every preset, as the reference notes describe the release; measured as an
+    #: experiment on ARCF-HC (docs/benchmarks.md), it did not bring the boxes closer overall.
+    normalize_features: bool = False
     #: Cell size of all features (release: 4).
     cell_size: int = 4
     #: Search region side = sqrt(w h) * sqrt(search_area_scale) (release: 5, square region).

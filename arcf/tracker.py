@@ -105,7 +105,9 @@ class ARCFTracker:
             self._configure_bacf(x, y, w, h)
         else:
             self._configure_eco(x, y, w, h)
-        self._extractor = FeatureExtractor(self.params.features, self._cell, self._colornames_path)
+        self._extractor = FeatureExtractor(
+            self.params.features, self._cell, self._colornames_path, self.params.normalize_features
+        )
         self._extractor.prepare(color)
         self._window = hann2d(self._use_sz)
         self._yf = self._fwd(gaussian_label(self._use_sz, self._sigma))

@@ -17,9 +17,16 @@ class FeatureExtractor:
     table is only loaded when a colour frame actually needs it.
     """
 
-    def __init__(self, kinds: tuple[str, ...], cell: int, colornames_path: str | None) -> None:
+    def __init__(
+        self,
+        kinds: tuple[str, ...],
+        cell: int,
+        colornames_path: str | None,
+        normalize: bool = False,
+    ) -> None:
         self.kinds = kinds
         self.cell = cell
+        self.normalize = normalize
         self._colornames_path = colornames_path
         self._cn: ColorNames | None = None
 
@@ -47,4 +54,13 @@ class FeatureExtractor:
                 assert self._cn is not None
                 blocks.append(self._cn(patches, self.cell))
         feats = blocks[0] if len(blocks) == 1 else np.concatenate(blocks, axis=-1)
-        return np.ascontiguousarray(feats.transpose(0, 3, 1, 2), dtype=np.float32)
+        out = np.ascontiguousarray(feats.transpose(0, 3, 1, 2), dtype=np.float32)
+        if self.normalize:
+            # ECO's normalisation: sum of squares = (H W) * D per sample, so the data term of the
+            # filter objective has the same weight whatever the image contrast.
+            n, d, h, w = out.shape
+            energy = np.einsum("nk,nk->n", out.reshape(n, -1), out.reshape(n, -1), dtype=np.float64)
+            out *= np.sqrt(h * w * d / (energy + np.finfo(np.float64).eps)).astype(np.float32)[
+                :, None, None, None
+            ]
+        return out
