@@ -18,6 +18,7 @@ import argparse
 import json
 import os
 import platform
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -187,7 +188,19 @@ def main() -> int:
         ratio = {t: sum(fps[(s.name, mode, t)] / fps[(s.name, mode, "csrt")] for s in seqs)
                  / len(seqs) for t in trackers if t != "csrt" and "csrt" in trackers}
         print("| **mean** | | " + " | ".join(f"**{means[t]:.1f}**" for t in trackers) + " | "
-              + " | ".join(f"**{ratio[t]:.2f}x**" for t in ratio) + " |\n")
+              + " | ".join(f"**{ratio[t]:.2f}x**" for t in ratio) + " |")
+        if "csrt" in trackers:
+            med = {t: statistics.median(fps[(s.name, mode, t)] / fps[(s.name, mode, "csrt")]
+                                        for s in seqs) for t in ratio}
+            # aggregate: all frames over all seconds, i.e. FPS weighted by sequence length
+            agg = {t: sum(len(s) for s in seqs) / sum(len(s) / fps[(s.name, mode, t)] for s in seqs)
+                   for t in trackers}
+            print("| median ratio | | " + " |" * len(trackers) + " "
+                  + " | ".join(f"{med[t]:.2f}x" for t in med) + " |")
+            print("| all frames / all seconds | | "
+                  + " | ".join(f"{agg[t]:.1f}" for t in trackers) + " | "
+                  + " | ".join(f"{agg[t] / agg['csrt']:.2f}x" for t in ratio) + " |")
+        print()
     return 0
 
 

@@ -541,3 +541,20 @@ def test_peak_to_sidelobe() -> None:
     side[np.ix_([17, 18, 19, 0, 1], [18, 19, 0, 1, 2])] = False
     expected = (1.0 - m[side].mean()) / m[side].std()
     assert peak_to_sidelobe(m, 2) == pytest.approx(expected)
+
+
+def test_feature_normalisation_fixes_the_energy_per_element() -> None:
+    """ECO-style normalisation: each sample's squared features sum to H*W*D, whatever the
+    contrast, so the filter's data term does not depend on image brightness."""
+    rng = np.random.default_rng(7)
+    patches = rng.integers(0, 256, size=(2, 64, 48, 3), dtype=np.uint8)
+    patches[1] = patches[1] // 4  # a low-contrast sample
+    plain = FeatureExtractor(("gray", "fhog"), 4, None)(patches, color=False)
+    norm = FeatureExtractor(("gray", "fhog"), 4, None, normalize=True)(patches, color=False)
+    n, d, h, w = norm.shape
+    energy = (norm.astype(np.float64) ** 2).reshape(n, -1).sum(axis=1)
+    np.testing.assert_allclose(energy, h * w * d, rtol=1e-4)
+    # a positive rescaling per sample: same direction as the plain features
+    for i in range(n):
+        a, b = plain[i].ravel(), norm[i].ravel()
+        assert np.dot(a, b) / (np.linalg.norm(a) * np.linalg.norm(b)) > 0.99999
