@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import re
 import sys
 import time
 from collections.abc import Iterator, Sequence
@@ -21,23 +20,17 @@ import numpy as np
 
 from . import __version__
 from .errors import ARCFError
+from .eval.datasets import DatasetError
+from .eval.datasets import list_frames as dataset_frames
 from .presets import PRESETS
 from .tracker import create_tracker
 
-IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp"}
-
-
-def _natural_key(path: Path) -> tuple[object, ...]:
-    return tuple(int(t) if t.isdigit() else t for t in re.split(r"(\d+)", path.name))
-
 
 def list_frames(folder: Path) -> list[Path]:
-    frames = sorted(
-        (p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES), key=_natural_key
-    )
-    if not frames:
-        raise SystemExit(f"arcf track: no image files in {folder}")
-    return frames
+    try:
+        return list(dataset_frames(folder))
+    except DatasetError as exc:
+        raise SystemExit(f"arcf track: {exc}") from exc
 
 
 def read_frames(paths: Sequence[Path]) -> Iterator[np.ndarray]:
@@ -88,10 +81,7 @@ def draw(frame: np.ndarray, box: Sequence[float], text: str) -> np.ndarray:
 
 
 def cmd_track(args: argparse.Namespace) -> int:
-    folder = Path(args.frames)
-    if not folder.is_dir():
-        raise SystemExit(f"arcf track: {folder} is not a folder of frames")
-    paths = list_frames(folder)
+    paths = list_frames(Path(args.frames))
     if args.box is not None:
         box = args.box
     elif args.init_from is not None:

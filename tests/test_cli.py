@@ -76,5 +76,5 @@ def test_track_reports_bad_input_clearly(
 
 def test_track_rejects_a_folder_without_frames(tmp_path: Path) -> None:
     (tmp_path / "empty").mkdir()
-    with pytest.raises(SystemExit, match="no image files"):
+    with pytest.raises(SystemExit, match="no frames"):
         main(["track", str(tmp_path / "empty"), "--box", "1,1,5,5"])
