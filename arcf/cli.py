@@ -178,6 +178,10 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--frames-limit", type=int, default=0, help="track only the first N frames")
     t.add_argument("--colornames", help="path of cn_norm_32768x10.npy (else $ARCF_COLORNAMES)")
     t.set_defaults(func=cmd_track)
+
+    from .eval.cli import add_parser as add_eval_parser
+
+    add_eval_parser(sub, parse_override)
     return parser
 
 

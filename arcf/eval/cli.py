@@ -1,0 +1,117 @@
+"""``arcf eval``: run trackers over the benchmarks and score result folders.
+
+    arcf eval run --preset arcf-h --dataset uav123_10fps --out results
+    arcf eval run --preset arcf-h --set aberrance=release --label arcf-h_release --dataset dtb70
+    arcf eval score results/arcf-h/UAV123_10fps $ARCF_DATA/published_results/UAV123_10fps/\
+        groundtruth
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any
+
+from ..data import data_root
+from ..errors import ARCFError
+from ..presets import PRESETS, make_params
+from .datasets import DatasetError, load_dataset
+from .metrics import DatasetScore
+from .results import ResultsError, read_fps, score_folder
+from .runner import TrackerSpec, dataset_folder, result_dir, run_experiment
+
+DATASETS = ("uav123_10fps", "dtb70", "uavdt")
+
+
+def _sequence_filter(text: str | None) -> list[str] | None:
+    return [s for s in text.split(",") if s] if text else None
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    overrides: dict[str, Any] = dict(args.set or [])
+    try:
+        make_params(args.preset, **overrides)  # fail before any process starts
+    except ARCFError as exc:
+        raise SystemExit(f"arcf eval run: {exc}") from exc
+    spec = TrackerSpec(args.preset, overrides, args.label or "")
+    wanted = _sequence_filter(args.sequences)
+    root = Path(args.data) if args.data else data_root()
+    status = 0
+    for ds in args.dataset:
+        try:
+            seqs = load_dataset(ds, root=root / ds if not Path(ds).is_dir() else None)
+        except DatasetError as exc:
+            print(f"arcf eval run: skipping {ds}: {exc}", file=sys.stderr)
+            status = 1
+            continue
+        if wanted:
+            seqs = [s for s in seqs if s.name in wanted]
+        if not seqs:
+            continue
+        try:
+            infos = run_experiment(spec, seqs, args.out, jobs=args.jobs, resume=not args.fresh,
+                                   progress=not args.quiet)
+        except RuntimeError as exc:
+            print(f"arcf eval run: {exc}", file=sys.stderr)
+            status = 1
+            continue
+        folder = result_dir(Path(args.out), spec, seqs[0].dataset)
+        ran = [i for i in infos if not i.skipped]
+        print(f"{spec.name} on {dataset_folder(seqs[0].dataset)}: {len(ran)} run, "
+              f"{len(infos) - len(ran)} already done -> {folder}", file=sys.stderr)
+        gt = root / "published_results" / dataset_folder(seqs[0].dataset) / "groundtruth"
+        if gt.is_dir():
+            _print_score(score_folder(folder, gt, sequences=[s.name for s in seqs]),
+                         read_fps(folder), f"{spec.name} / {dataset_folder(seqs[0].dataset)}")
+    return status
+
+
+def _print_score(score: DatasetScore, fps: dict[str, float], title: str) -> None:
+    print(f"## {title} ({score.convention} convention)\n")
+    print("| sequence | P@20 | AUC | FPS |\n| --- | --- | --- | --- |")
+    for name, s in score.sequences.items():
+        f = fps.get(name)
+        print(f"| {name} | {s.precision20:.3f} | {s.auc:.3f} | {'' if f is None else f'{f:.1f}'} |")
+    print(f"| **mean** | **{score.precision20:.3f}** | **{score.auc:.3f}** | |\n")
+
+
+def cmd_score(args: argparse.Namespace) -> int:
+    try:
+        score = score_folder(args.results, args.groundtruth,
+                             sequences=_sequence_filter(args.sequences),
+                             convention=args.convention)
+        fps = read_fps(args.results)
+    except (ResultsError, DatasetError, ValueError, FileNotFoundError) as exc:
+        raise SystemExit(f"arcf eval score: {exc}") from exc
+    _print_score(score, fps, str(args.results))
+    return 0
+
+
+def add_parser(sub: argparse._SubParsersAction, parse_override: Any) -> None:  # type: ignore[type-arg]
+    ev = sub.add_parser("eval", help="run and score trackers on UAV123@10fps, DTB70, UAVDT")
+    esub = ev.add_subparsers(dest="eval_command", required=True)
+
+    r = esub.add_parser("run", help="one-pass evaluation of a preset over datasets (resumable)",
+                        description="One-pass evaluation: init on each sequence's first "
+                        "ground-truth box, never re-initialise. A process per sequence.")
+    r.add_argument("--preset", default="arcf-hc", choices=sorted(PRESETS))
+    r.add_argument("--set", action="append", type=parse_override, metavar="KEY=VALUE",
+                   help="override a parameter, e.g. --set aberrance=release")
+    r.add_argument("--label", help="results folder name (default: preset + overrides)")
+    r.add_argument("--dataset", nargs="+", default=list(DATASETS),
+                   help="dataset names (uav123_10fps, dtb70, uavdt) or dataset folders")
+    r.add_argument("--sequences", help="comma-separated subset of sequence names")
+    r.add_argument("--data", help="data root (default $ARCF_DATA or ../shared/data)")
+    r.add_argument("--out", default="results", help="results root (default ./results)")
+    r.add_argument("--jobs", type=int, default=2, help="worker processes (default 2)")
+    r.add_argument("--fresh", action="store_true", help="rerun sequences already done")
+    r.add_argument("--quiet", action="store_true", help="no progress line")
+    r.set_defaults(func=cmd_run)
+
+    s = esub.add_parser("score", help="score a folder of result files against ground truth")
+    s.add_argument("results", help="folder of <sequence>.txt result files")
+    s.add_argument("groundtruth", help="folder of <sequence>.txt ground-truth files")
+    s.add_argument("--convention", choices=("toolkit", "clean"), default="toolkit")
+    s.add_argument("--sequences", help="comma-separated subset")
+    s.set_defaults(func=cmd_score)
