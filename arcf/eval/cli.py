@@ -88,6 +88,19 @@ def cmd_score(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_report(args: argparse.Namespace) -> int:
+    from .paper import build_report
+
+    try:
+        doc = build_report(out=Path(args.out), doc=Path(args.doc), img=Path(args.img),
+                           data=Path(args.data) if args.data else None, jobs=args.jobs,
+                           progress=not args.quiet)
+    except ImportError as exc:
+        raise SystemExit(f"arcf eval report: {exc}") from exc
+    print(f"arcf eval report: wrote {doc}", file=sys.stderr)
+    return 0
+
+
 def add_parser(sub: argparse._SubParsersAction, parse_override: Any) -> None:  # type: ignore[type-arg]
     ev = sub.add_parser("eval", help="run and score trackers on UAV123@10fps, DTB70, UAVDT")
     esub = ev.add_subparsers(dest="eval_command", required=True)
@@ -115,3 +128,18 @@ def add_parser(sub: argparse._SubParsersAction, parse_override: Any) -> None:  #
     s.add_argument("--convention", choices=("toolkit", "clean"), default="toolkit")
     s.add_argument("--sequences", help="comma-separated subset")
     s.set_defaults(func=cmd_score)
+
+    rp = esub.add_parser(
+        "report",
+        help="regenerate docs/results.md: the paper's tables and plots, ours vs published",
+        description="Runs our presets (both aberrance formulations) on every local sequence "
+        "(resumable), scores them and the published trackers, and writes the Markdown report "
+        "with precision/success plots, Table 2 and the per-frame map-difference figure.",
+    )
+    rp.add_argument("--out", default="results", help="results root (runs cached here)")
+    rp.add_argument("--doc", default="docs/results.md")
+    rp.add_argument("--img", default="docs/img")
+    rp.add_argument("--data", help="data root (default $ARCF_DATA or ../shared/data)")
+    rp.add_argument("--jobs", type=int, default=2)
+    rp.add_argument("--quiet", action="store_true")
+    rp.set_defaults(func=cmd_report)
