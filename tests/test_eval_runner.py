@@ -92,3 +92,17 @@ def test_progress_line_reports_rate_and_eta() -> None:
     line = out.getvalue().strip()
     assert line.startswith("arcf-h: 25/100 frames (25%)")
     assert "frames/s" in line and "ETA" in line and "seq0" in line
+
+
+def test_a_run_folder_scores_with_its_side_files_ignored(tmp_path: Path, sequences) -> None:
+    from arcf.eval import score_folder
+
+    spec = TrackerSpec("bacf")
+    run_experiment(spec, sequences, tmp_path / "out", jobs=2, progress=False)
+    gt = tmp_path / "gt"
+    gt.mkdir()
+    for seq in sequences:
+        np.savetxt(gt / f"{seq.name}.txt", seq.groundtruth, delimiter=",", fmt="%.2f")
+    score = score_folder(result_dir(tmp_path / "out", spec, "generic"), gt)
+    assert sorted(score.sequences) == ["seq0", "seq1"]  # no "seq0_time", "seq0_map_diff"
+    assert score.precision20 == 1.0

@@ -29,7 +29,9 @@ __all__ = [
 
 #: Stems ending like this are per-sequence side files, not boxes (the authors' UAV123 folders
 #: hold ``<sequence>_map_diff.txt``, the per-frame response-map differences of Eq. 2).
-AUXILIARY_SUFFIXES: tuple[str, ...] = ("_map_diff",)
+#: Side files beside the box files: the published ``_map_diff`` and our runner's per-frame
+#: ``_time`` files (``_details`` is a .csv and never matches ``*.txt``).
+AUXILIARY_SUFFIXES: tuple[str, ...] = ("_map_diff", "_time")
 
 
 class ResultsError(ValueError):
