@@ -1,0 +1,226 @@
+"""Zenoh key expressions of the wire contract, built and parsed in one place.
+
+Every key is ``<prefix>/...`` (``arcf/v1`` by default, a setting). Ids placed in keys are checked
+against :data:`~schemas.messages.ID_PATTERN`, which excludes ``/`` and every Zenoh special
+character (``*``, ``$``, ``?``, ``#``, ``@``): an id is always exactly one literal chunk, so a
+client cannot reach another stream's keys (or all of them) through a crafted id, and a parser
+can split keys on ``/`` without ambiguity. The prefix follows the same rule per chunk.
+
+This module is pure string work; it does not import zenoh. Parsers accept a ``str`` or anything
+whose ``str()`` is the key, such as a ``zenoh.KeyExpr``.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+from .messages import ID_PATTERN
+
+__all__ = [
+    "DEFAULT_PREFIX",
+    "KEY_ROUTES",
+    "InvalidKey",
+    "KeyRoute",
+    "KeySpace",
+    "check_id",
+    "is_valid_id",
+]
+
+#: Default key prefix; the version in it lets a v2 service run beside v1 without crosstalk.
+DEFAULT_PREFIX = "arcf/v1"
+
+_ID_RE = re.compile(ID_PATTERN)
+
+
+class InvalidKey(ValueError):
+    """An id, prefix or key expression that does not fit the contract's key layout."""
+
+
+def is_valid_id(value: object) -> bool:
+    """True if ``value`` is a str usable as a stream/session/instance/worker id."""
+    return isinstance(value, str) and _ID_RE.match(value) is not None
+
+
+def check_id(value: object, what: str = "id") -> str:
+    """Return ``value`` if it is a valid id, else raise :class:`InvalidKey` naming ``what``."""
+    if not is_valid_id(value):
+        raise InvalidKey(
+            f"{what} must match {ID_PATTERN} (1-64 of A-Z a-z 0-9 _ . -), got {value!r}"
+        )
+    return value  # type: ignore[return-value]
+
+
+@dataclass(frozen=True)
+class KeyRoute:
+    """One row of the key-expression table of the design (exported to ``index.json``)."""
+
+    name: str
+    key: str
+    who: str
+    what: str
+    messages: tuple[str, ...]
+
+
+#: The key-expression table of ``docs/wire-contract.md``.
+KEY_ROUTES: tuple[KeyRoute, ...] = (
+    KeyRoute(
+        "frames",
+        "<prefix>/streams/<stream>/frames",
+        "ground station puts",
+        "frame messages (compressed or raw images)",
+        ("frame",),
+    ),
+    KeyRoute(
+        "results",
+        "<prefix>/streams/<stream>/sessions/<session>/results",
+        "service puts",
+        "result messages, one per processed frame per session",
+        ("result",),
+    ),
+    KeyRoute(
+        "errors",
+        "<prefix>/streams/<stream>/errors",
+        "service puts",
+        "error messages about that stream's frames (undecodable, oversized, no session)",
+        ("error",),
+    ),
+    KeyRoute(
+        "control",
+        "<prefix>/control",
+        "service queryable; clients get with a request as payload",
+        "start, reinit, stop and status_request requests; the reply is an ack (status for "
+        "status_request) or an error",
+        ("start", "reinit", "stop", "status_request", "ack", "status", "error"),
+    ),
+    KeyRoute(
+        "workers",
+        "<prefix>/workers/<instance>/<worker>",
+        "service liveliness tokens",
+        "one per live worker process (no payload)",
+        (),
+    ),
+)
+
+
+@dataclass(frozen=True)
+class KeySpace:
+    """Builds and parses the contract's keys under one ``prefix``.
+
+    >>> keys = KeySpace()
+    >>> keys.results("cam1", "s1")
+    'arcf/v1/streams/cam1/sessions/s1/results'
+    >>> keys.stream_of_frames_key("arcf/v1/streams/cam1/frames")
+    'cam1'
+    """
+
+    prefix: str = DEFAULT_PREFIX
+
+    def __post_init__(self) -> None:
+        prefix = self.prefix
+        if not isinstance(prefix, str) or not prefix:
+            raise InvalidKey(f"key prefix must be a non-empty string, got {prefix!r}")
+        if prefix.startswith("/") or prefix.endswith("/"):
+            raise InvalidKey(f"key prefix must not start or end with '/', got {prefix!r}")
+        for chunk in prefix.split("/"):
+            if not is_valid_id(chunk):
+                raise InvalidKey(
+                    f"key prefix chunks must match {ID_PATTERN} (no wildcards, '$', '?', '#', "
+                    f"'@' or empty chunks), got {prefix!r}"
+                )
+
+    # -- builders ------------------------------------------------------------------------------
+
+    def frames(self, stream: str) -> str:
+        """``<prefix>/streams/<stream>/frames``: where a ground station puts a stream's frames."""
+        return f"{self.prefix}/streams/{check_id(stream, 'stream id')}/frames"
+
+    def all_frames(self) -> str:
+        """``<prefix>/streams/*/frames``: the service's subscription to every stream."""
+        return f"{self.prefix}/streams/*/frames"
+
+    def results(self, stream: str, session: str) -> str:
+        """``<prefix>/streams/<stream>/sessions/<session>/results``: one session's results."""
+        stream = check_id(stream, "stream id")
+        return f"{self.prefix}/streams/{stream}/sessions/{check_id(session, 'session id')}/results"
+
+    def results_of_stream(self, stream: str) -> str:
+        """``<prefix>/streams/<stream>/sessions/*/results``: every session's results."""
+        return f"{self.prefix}/streams/{check_id(stream, 'stream id')}/sessions/*/results"
+
+    def all_results(self) -> str:
+        """``<prefix>/streams/*/sessions/*/results``: every result (monitoring, recording)."""
+        return f"{self.prefix}/streams/*/sessions/*/results"
+
+    def errors(self, stream: str) -> str:
+        """``<prefix>/streams/<stream>/errors``: errors about a stream's frames."""
+        return f"{self.prefix}/streams/{check_id(stream, 'stream id')}/errors"
+
+    def all_errors(self) -> str:
+        """``<prefix>/streams/*/errors``: errors about every stream's frames."""
+        return f"{self.prefix}/streams/*/errors"
+
+    def control(self) -> str:
+        """``<prefix>/control``: the service's queryable for requests."""
+        return f"{self.prefix}/control"
+
+    def worker_token(self, instance: str, worker: str) -> str:
+        """``<prefix>/workers/<instance>/<worker>``: a worker process's liveliness token."""
+        instance = check_id(instance, "instance id")
+        return f"{self.prefix}/workers/{instance}/{check_id(worker, 'worker id')}"
+
+    def workers_of_instance(self, instance: str) -> str:
+        """``<prefix>/workers/<instance>/*``: the tokens of one service instance's workers."""
+        return f"{self.prefix}/workers/{check_id(instance, 'instance id')}/*"
+
+    def all_workers(self) -> str:
+        """``<prefix>/workers/*/*``: every worker token of every instance."""
+        return f"{self.prefix}/workers/*/*"
+
+    # -- parsers -------------------------------------------------------------------------------
+
+    def _chunks(self, key: object, shape: tuple[str | None, ...], what: str) -> list[str]:
+        """The id chunks of ``key`` laid out as ``<prefix>/`` + ``shape``.
+
+        ``shape`` lists the chunks after the prefix: a literal, or ``None`` for an id.
+        """
+        text = str(key)
+        head = self.prefix + "/"
+        if not text.startswith(head):
+            raise InvalidKey(f"{text!r} is not under the key prefix {self.prefix!r}")
+        chunks = text[len(head) :].split("/")
+        if len(chunks) != len(shape):
+            raise InvalidKey(f"{text!r} is not a {what} key")
+        ids = []
+        for chunk, expect in zip(chunks, shape, strict=True):
+            if expect is None:
+                if not is_valid_id(chunk):
+                    raise InvalidKey(f"{text!r} is not a {what} key: bad id {chunk!r}")
+                ids.append(chunk)
+            elif chunk != expect:
+                raise InvalidKey(f"{text!r} is not a {what} key")
+        return ids
+
+    def stream_of_frames_key(self, key: object) -> str:
+        """The stream id of a ``frames`` key (e.g. of a received sample's ``key_expr``)."""
+        return self._chunks(key, ("streams", None, "frames"), "frames")[0]
+
+    def stream_of_errors_key(self, key: object) -> str:
+        """The stream id of an ``errors`` key."""
+        return self._chunks(key, ("streams", None, "errors"), "errors")[0]
+
+    def parse_results_key(self, key: object) -> tuple[str, str]:
+        """``(stream, session)`` of a ``results`` key."""
+        stream, session = self._chunks(
+            key, ("streams", None, "sessions", None, "results"), "results"
+        )
+        return stream, session
+
+    def parse_worker_key(self, key: object) -> tuple[str, str]:
+        """``(instance, worker)`` of a worker liveliness token key."""
+        instance, worker = self._chunks(key, ("workers", None, None), "worker token")
+        return instance, worker
+
+    def is_control_key(self, key: object) -> bool:
+        """True if ``key`` is exactly the control key."""
+        return str(key) == self.control()

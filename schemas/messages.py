@@ -1,0 +1,522 @@
+"""Pydantic models of every message of the wire contract (``docs/wire-contract.md``).
+
+These models are the source of truth: the msgpack codec (:mod:`schemas.codec`) validates every
+incoming map against them and the JSON Schema files in ``schemas/json`` are generated from them.
+
+Design choices that apply to every model:
+
+* ``extra="forbid"``: a misspelt field is an error, not something silently ignored (a client that
+  sends ``frameseq`` would otherwise start a session on the wrong frame without noticing).
+* ``frozen=True``: a decoded message is a value; nothing downstream may change what was received.
+* Scalars are *strict*: ``"5"``, ``5.0`` or ``True`` are not a valid ``seq``, a string is not a
+  number and bytes are not text. msgpack carries types, so a peer that sends the wrong one has a
+  bug worth reporting rather than a value worth guessing. Floats accept msgpack ints (a box
+  ``[10, 20, 30, 40]`` is fine).
+* Integers are bounded to the signed 64-bit range so that every valid message can be encoded by
+  msgpack and read by clients in languages without big integers.
+* The wire ``type`` of a model is a class variable (``Frame.type == "frame"``), not a field: the
+  codec writes it in the envelope next to ``v`` and uses it to pick the model when decoding.
+* Optional fields default to ``None``; the codec omits ``None`` fields on the wire and accepts
+  both an absent key and an explicit msgpack ``nil``.
+"""
+
+from __future__ import annotations
+
+import math
+from enum import Enum
+from typing import Annotated, Any, ClassVar
+
+from pydantic import (
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Field,
+    StrictBool,
+    StrictStr,
+    ValidationError,
+    ValidatorFunctionWrapHandler,
+    WrapValidator,
+    model_validator,
+)
+from pydantic_core import PydanticCustomError
+
+__all__ = [
+    "BOX_ERROR_TYPE",
+    "ID_PATTERN",
+    "INT64_MAX",
+    "MAX_BOX_COORD",
+    "MAX_OVERRIDES",
+    "MESSAGE_TYPES",
+    "OVERRIDE_KEY_PATTERN",
+    "SCHEMA_VERSION",
+    "Ack",
+    "Box",
+    "Encoding",
+    "ErrorCode",
+    "ErrorMessage",
+    "Frame",
+    "Message",
+    "ReinitRequest",
+    "Result",
+    "ResultBox",
+    "ResultStatus",
+    "SessionInfo",
+    "StartRequest",
+    "Status",
+    "StatusRequest",
+    "StopRequest",
+    "WireModel",
+]
+
+#: Version written in the ``v`` envelope key of every message. Bump it only for incompatible
+#: changes; the decoder rejects any other version with ``unsupported_version``.
+SCHEMA_VERSION = 1
+
+#: Stream, session, request, instance and worker ids, and preset names. The character set
+#: excludes ``/``, ``*``, ``$``, ``?``, ``#`` and ``@`` so that an id is always one literal Zenoh
+#: key-expression chunk: a client cannot subscribe to other streams by naming its stream ``*``.
+ID_PATTERN = r"^[A-Za-z0-9_.-]{1,64}$"
+
+#: Parameter names in ``overrides``: identifiers, dotted for nested parameters
+#: (``scale_filter.n_scales``).
+OVERRIDE_KEY_PATTERN = r"^[A-Za-z_][A-Za-z0-9_.]{0,63}$"
+
+#: ``overrides`` holds at most this many entries (a request is small; a huge map is abuse).
+MAX_OVERRIDES = 32
+
+#: Longest string value accepted in ``overrides``.
+MAX_OVERRIDE_STR = 256
+
+#: Largest integer of the contract: msgpack and most client languages use 64-bit integers.
+INT64_MAX = 2**63 - 1
+
+#: Largest magnitude of a request box's coordinates and size, in pixels. Far beyond any camera
+#: (8K is 7680 px wide) yet small enough that a tracker sized from the box cannot be made to
+#: allocate absurd amounts of memory.
+MAX_BOX_COORD = 100_000.0
+
+#: pydantic error ``type`` raised for a bad box; the codec maps it to ``ErrorCode.INVALID_BOX``.
+BOX_ERROR_TYPE = "invalid_box"
+
+
+class ErrorCode(str, Enum):
+    """Codes of ``error`` messages, so that clients can react without parsing English text."""
+
+    MALFORMED_MESSAGE = "malformed_message"
+    UNSUPPORTED_VERSION = "unsupported_version"
+    UNKNOWN_TYPE = "unknown_type"
+    INVALID_REQUEST = "invalid_request"
+    UNKNOWN_STREAM = "unknown_stream"
+    UNKNOWN_SESSION = "unknown_session"
+    INVALID_BOX = "invalid_box"
+    UNKNOWN_PRESET = "unknown_preset"
+    INVALID_PARAMETER = "invalid_parameter"
+    DECODE_ERROR = "decode_error"
+    OVERSIZED_PAYLOAD = "oversized_payload"
+    NO_SESSION = "no_session"
+    INTERNAL = "internal"
+
+
+class Encoding(str, Enum):
+    """How a frame's ``payload`` is encoded.
+
+    ``jpeg``/``png`` are compressed files (what a ground station normally sends over a radio
+    link); ``bgr8``/``gray8`` are raw row-major 8-bit pixels (OpenCV's layout, no padding), for
+    same-host producers that would only waste CPU compressing.
+    """
+
+    JPEG = "jpeg"
+    PNG = "png"
+    BGR8 = "bgr8"
+    GRAY8 = "gray8"
+
+    @property
+    def is_raw(self) -> bool:
+        """True for raw pixel encodings, whose size must be declared in the frame."""
+        return self in (Encoding.BGR8, Encoding.GRAY8)
+
+    @property
+    def channels(self) -> int | None:
+        """Bytes per pixel of a raw encoding, ``None`` for compressed ones."""
+        return {Encoding.BGR8: 3, Encoding.GRAY8: 1}.get(self)
+
+
+class ResultStatus(str, Enum):
+    """What happened to a session on the frame a ``result`` is about."""
+
+    INITIALIZED = "initialized"
+    TRACKING = "tracking"
+    REINITIALIZED = "reinitialized"
+    ERROR = "error"
+
+
+# ---------------------------------------------------------------------------------------------
+# Field types
+# ---------------------------------------------------------------------------------------------
+
+Id = Annotated[StrictStr, Field(pattern=ID_PATTERN)]
+NonNegInt = Annotated[int, Field(strict=True, ge=0, le=INT64_MAX)]
+PositiveInt = Annotated[int, Field(strict=True, ge=1, le=INT64_MAX)]
+#: Nanoseconds since the Unix epoch.
+TimestampNs = Annotated[int, Field(strict=True, ge=0, le=INT64_MAX)]
+
+
+def _strict_number(value: Any) -> Any:
+    """Accept msgpack ints and floats as floats, nothing else (no bools, no numeric strings)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return value  # let the float validator report a clear "valid number" error
+    return float(value)
+
+
+#: Any float, NaN and infinities included (results report NaN when a value does not exist).
+AnyFloat = Annotated[float, BeforeValidator(_strict_number), Field(strict=True)]
+NonNegFiniteFloat = Annotated[
+    float, BeforeValidator(_strict_number), Field(strict=True, ge=0, allow_inf_nan=False)
+]
+
+
+def _check_box(value: Any) -> Any:
+    """Validate a request box before anything else looks at it, with one clear message.
+
+    A box drawn by an operator is what starts a tracker; an absurd one (NaN, negative or zero
+    size, wrong arity) would make the tracker fail later in an obscure way, so it is rejected here
+    with the ``invalid_box`` error type that the codec reports as ``ErrorCode.INVALID_BOX``.
+    """
+    if not isinstance(value, (list, tuple)) or len(value) != 4:
+        raise PydanticCustomError(
+            BOX_ERROR_TYPE,
+            "box must be a list of 4 numbers [x, y, w, h], got {got}",
+            {"got": _describe(value)},
+        )
+    out = []
+    for name, item in zip("xywh", value, strict=True):
+        if isinstance(item, bool) or not isinstance(item, (int, float)):
+            raise PydanticCustomError(
+                BOX_ERROR_TYPE,
+                "box {name} must be a number, got {got}",
+                {"name": name, "got": type(item).__name__},
+            )
+        number = float(item)
+        if not math.isfinite(number):
+            raise PydanticCustomError(
+                BOX_ERROR_TYPE,
+                "box {name} must be finite, got {got}",
+                {"name": name, "got": repr(number)},
+            )
+        out.append(number)
+    if not (out[2] > 0 and out[3] > 0):
+        raise PydanticCustomError(
+            BOX_ERROR_TYPE,
+            "box width and height must be > 0, got w={w}, h={h}",
+            {"w": repr(out[2]), "h": repr(out[3])},
+        )
+    if max(abs(number) for number in out) > MAX_BOX_COORD:
+        raise PydanticCustomError(
+            BOX_ERROR_TYPE,
+            "box values must be within +/-{limit} pixels, got {box}",
+            {"limit": repr(MAX_BOX_COORD), "box": repr(out)},
+        )
+    return tuple(out)
+
+
+def _check_result_box(value: Any) -> Any:
+    """A result box is 4 numbers; NaN is allowed (no box when the tracker failed)."""
+    if not isinstance(value, (list, tuple)) or len(value) != 4:
+        raise PydanticCustomError(
+            BOX_ERROR_TYPE,
+            "box must be a list of 4 numbers [x, y, w, h], got {got}",
+            {"got": _describe(value)},
+        )
+    return value
+
+
+def _describe(value: Any) -> str:
+    if isinstance(value, (list, tuple)):
+        return f"{type(value).__name__} of {len(value)} items"
+    if isinstance(value, float):
+        return repr(value)
+    if isinstance(value, str):
+        return f"str of {len(value)} characters"
+    return type(value).__name__
+
+
+_BoxSize = Annotated[float, Field(gt=0, le=MAX_BOX_COORD, allow_inf_nan=False)]
+_BoxCoord = Annotated[float, Field(ge=-MAX_BOX_COORD, le=MAX_BOX_COORD, allow_inf_nan=False)]
+
+#: ``[x, y, w, h]``, 1-based pixel coordinates of the frame, finite, ``w > 0`` and ``h > 0``.
+Box = Annotated[
+    tuple[_BoxCoord, _BoxCoord, _BoxSize, _BoxSize],
+    BeforeValidator(_check_box),
+    Field(
+        description=(
+            "[x, y, w, h] in the frame's 1-based pixel coordinates: 4 finite numbers, "
+            f"w > 0 and h > 0, all within +/-{MAX_BOX_COORD:g} pixels."
+        )
+    ),
+]
+
+#: ``[x, y, w, h]`` reported by the service; NaN when no box exists.
+ResultBox = Annotated[
+    tuple[AnyFloat, AnyFloat, AnyFloat, AnyFloat],
+    BeforeValidator(_check_result_box),
+    Field(
+        description=(
+            "[x, y, w, h] in the frame's 1-based pixel coordinates; may be NaN (msgpack float) "
+            "when the tracker has no box."
+        )
+    ),
+]
+
+
+def _one_override_error(value: Any, handler: ValidatorFunctionWrapHandler) -> Any:
+    """Report a bad override value once, instead of once per member of the union."""
+    try:
+        return handler(value)
+    except ValidationError:
+        raise PydanticCustomError(
+            "override_value",
+            "override values must be a bool, a 64-bit int, a finite float or a string of at "
+            "most {limit} characters, got {got}",
+            {"limit": MAX_OVERRIDE_STR, "got": _describe(value)},
+        ) from None
+
+
+OverrideKey = Annotated[StrictStr, Field(pattern=OVERRIDE_KEY_PATTERN)]
+# StrictBool first: in msgpack (and Python) True is not an integer parameter. Constraints are
+# declared on the types (not checked in a validator) so that the JSON Schema states them too.
+OverrideValue = Annotated[
+    StrictBool
+    | Annotated[int, Field(strict=True, ge=-INT64_MAX - 1, le=INT64_MAX)]
+    | Annotated[float, Field(strict=True, allow_inf_nan=False)]
+    | Annotated[StrictStr, Field(max_length=MAX_OVERRIDE_STR)],
+    WrapValidator(_one_override_error),
+]
+
+
+# ---------------------------------------------------------------------------------------------
+# Models
+# ---------------------------------------------------------------------------------------------
+
+
+class WireModel(BaseModel):
+    """Base of every model: closed (``extra="forbid"``) and immutable (``frozen=True``)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class Message(WireModel):
+    """A top-level message: has a wire ``type`` written in the envelope by the codec."""
+
+    #: Wire name of the message kind (the envelope's ``type``).
+    type: ClassVar[str]
+
+
+class Frame(Message):
+    """One image of a stream, put by the ground station on ``<prefix>/streams/<stream>/frames``.
+
+    ``seq`` increases by one per frame of a stream, so the service counts frames lost on the way
+    (Zenoh drops frames under congestion by design) instead of guessing. Raw encodings carry their
+    size because the bytes alone do not say it; the payload length is checked against it so that
+    a truncated raw frame never reaches the tracker.
+    """
+
+    type: ClassVar[str] = "frame"
+
+    stream_id: Id
+    seq: NonNegInt = Field(description="Frame number, increasing per stream; gaps = lost frames.")
+    capture_ts_ns: TimestampNs = Field(description="Capture time, ns since the Unix epoch.")
+    encoding: Encoding
+    width: PositiveInt | None = Field(
+        default=None, description="Image width in pixels; required for bgr8/gray8."
+    )
+    height: PositiveInt | None = Field(
+        default=None, description="Image height in pixels; required for bgr8/gray8."
+    )
+    payload: bytes = Field(
+        strict=True,
+        min_length=1,
+        description=(
+            "The image bytes, sent as msgpack bin (not base64, not a msgpack str): a JPEG/PNG "
+            "file, or width*height*channels raw bytes (bgr8: 3 channels, gray8: 1), row-major."
+        ),
+        json_schema_extra={
+            "contentEncoding": "binary",
+            "contentMediaType": "application/octet-stream",
+            "x-msgpack": "bin",
+        },
+    )
+
+    @model_validator(mode="after")
+    def _check_raw_size(self) -> Frame:
+        channels = self.encoding.channels
+        if channels is None:
+            return self
+        if self.width is None or self.height is None:
+            raise ValueError(f"{self.encoding.value} frames need width and height")
+        expected = self.width * self.height * channels
+        if len(self.payload) != expected:
+            raise ValueError(
+                f"{self.encoding.value} payload is {len(self.payload)} bytes, expected "
+                f"width*height*{channels} = {expected}"
+            )
+        return self
+
+
+class StartRequest(Message):
+    """Start a tracking session on a stream, from a box drawn by the operator.
+
+    ``frame_seq`` names the frame the box was drawn on, because the operator drew it on a frame
+    that is already some latency old; absent, the box applies to the next frame that arrives.
+    """
+
+    type: ClassVar[str] = "start"
+
+    request_id: Id = Field(description="Client-chosen; echoed in the reply.")
+    stream_id: Id
+    session_id: Id | None = Field(
+        default=None,
+        description="Client-chosen session id; the service assigns a uuid4 hex when absent.",
+    )
+    box: Box
+    preset: Id = Field(description='Tracker preset, e.g. "arcf-hc".')
+    overrides: dict[OverrideKey, OverrideValue] = Field(
+        default_factory=dict,
+        max_length=MAX_OVERRIDES,
+        description=(
+            f"Preset parameter overrides: name -> bool/int/float/str, at most {MAX_OVERRIDES}."
+        ),
+        json_schema_extra={"propertyNames": {"pattern": OVERRIDE_KEY_PATTERN}},
+    )
+    frame_seq: NonNegInt | None = Field(
+        default=None, description="Frame the box was drawn on; absent = the next frame."
+    )
+
+
+class ReinitRequest(Message):
+    """Re-initialise a running session on a new box (the operator corrects a drifted track)."""
+
+    type: ClassVar[str] = "reinit"
+
+    request_id: Id = Field(description="Client-chosen; echoed in the reply.")
+    session_id: Id
+    box: Box
+    frame_seq: NonNegInt | None = Field(
+        default=None, description="Frame the box was drawn on; absent = the next frame."
+    )
+
+
+class StopRequest(Message):
+    """Stop a session and free its tracker."""
+
+    type: ClassVar[str] = "stop"
+
+    request_id: Id = Field(description="Client-chosen; echoed in the reply.")
+    session_id: Id
+
+
+class StatusRequest(Message):
+    """Ask the service what it is running (answered by a ``status`` message)."""
+
+    type: ClassVar[str] = "status_request"
+
+    request_id: Id = Field(description="Client-chosen; echoed in the reply.")
+
+
+class Ack(Message):
+    """Positive reply to ``start``/``reinit``/``stop``; carries the ids the request resolved to."""
+
+    type: ClassVar[str] = "ack"
+
+    request_id: Id
+    session_id: Id | None = None
+    stream_id: Id | None = None
+    message: StrictStr
+
+
+class ErrorMessage(Message):
+    """Negative reply to a request, or a report about a stream's frames on its ``errors`` key.
+
+    ``code`` is machine-readable; ``message`` is for humans. The ids say what the error is about,
+    as far as the service could tell (a malformed request may not even have a request id).
+    """
+
+    type: ClassVar[str] = "error"
+
+    code: ErrorCode
+    message: StrictStr
+    request_id: Id | None = None
+    stream_id: Id | None = None
+    session_id: Id | None = None
+    frame_seq: NonNegInt | None = None
+
+
+class Result(Message):
+    """The tracker's output for one frame of one session.
+
+    Floats may be NaN (a msgpack float) when a value does not exist, e.g. on ``status="error"``:
+    a result is a measurement report, and NaN is more honest than a made-up number. ``dropped``
+    counts the frames of the stream the service skipped for this session since its previous result
+    (the service keeps up by processing the newest frame, not by queueing).
+    """
+
+    type: ClassVar[str] = "result"
+
+    session_id: Id
+    stream_id: Id
+    frame_seq: NonNegInt
+    capture_ts_ns: TimestampNs
+    box: ResultBox
+    peak: AnyFloat = Field(description="Response map peak.")
+    psr: AnyFloat = Field(description="Peak-to-sidelobe ratio of the response map.")
+    aberrance: AnyFloat = Field(description="Aberrance of the response map vs the previous one.")
+    aberrance_release: AnyFloat = Field(description="Aberrance as computed by the release code.")
+    scale: AnyFloat = Field(description="Current scale factor of the target.")
+    status: ResultStatus
+    dropped: NonNegInt = Field(
+        description="Frames of this stream skipped since the session's previous result."
+    )
+    message: StrictStr | None = Field(default=None, description='Explanation for status "error".')
+    received_ts_ns: TimestampNs = Field(description="When the service received the frame.")
+    decode_s: AnyFloat = Field(description="Seconds spent decoding the frame.")
+    track_s: AnyFloat = Field(description="Seconds spent in the tracker.")
+    published_ts_ns: TimestampNs = Field(description="When the service published this result.")
+
+
+class SessionInfo(WireModel):
+    """One running session, as listed in ``status`` (not a top-level message)."""
+
+    session_id: Id
+    stream_id: Id
+    preset: Id
+    frames: NonNegInt = Field(description="Frames processed by this session so far.")
+
+
+class Status(Message):
+    """Reply to ``status_request``: what this service instance runs."""
+
+    type: ClassVar[str] = "status"
+
+    request_id: Id
+    instance_id: Id
+    version: StrictStr = Field(max_length=64, description="Version of the service software.")
+    workers: NonNegInt = Field(description="Live worker processes.")
+    streams: list[Id] = Field(description="Streams with at least one session.")
+    sessions: list[SessionInfo]
+    uptime_s: NonNegFiniteFloat
+
+
+#: Every top-level message model by wire type, in the order of the design document.
+MESSAGE_TYPES: dict[str, type[Message]] = {
+    model.type: model
+    for model in (
+        Frame,
+        StartRequest,
+        ReinitRequest,
+        StopRequest,
+        StatusRequest,
+        Ack,
+        ErrorMessage,
+        Result,
+        Status,
+    )
+}

@@ -1,0 +1,186 @@
+"""``arcf-service``: the launcher. Embedded Zenoh router, control plane, workers, metrics.
+
+    arcf-service                         # router on tcp/127.0.0.1:7447, one worker per core
+    arcf-service --mode client --connect tcp/router.example:7447 --workers 4
+
+Shuts down cleanly on SIGTERM/SIGINT: workers close their Zenoh sessions and exit, then the
+control plane and the router close. No process is left behind.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import multiprocessing as mp
+import signal
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+from . import __version__, multiproc
+from .settings import ServiceSettings
+
+log = logging.getLogger("arcf.service")
+
+
+class Service:
+    """The running service (main process side). ``start()``, then ``wait()`` or ``close()``."""
+
+    def __init__(self, settings: ServiceSettings) -> None:
+        self.settings = settings
+        self._stop = threading.Event()
+        self.metrics_url = ""
+
+    def start(self) -> Service:
+        s = self.settings
+        self.metrics_dir = multiproc.prepare()  # before prometheus_client is imported
+        import zenoh
+        from prometheus_client import start_http_server
+
+        from schemas import ErrorMessage, KeySpace, encode
+
+        from . import metrics
+        from .control import ControlPlane
+        from .transport import open_session
+        from .worker import worker_main
+
+        self.keys = KeySpace(s.prefix)
+        self.session = open_session(s.mode, listen=s.listen, connect=s.connect,
+                                    config_file=s.zenoh_config, lease_ms=s.lease_ms)
+        self.http = None
+        if s.metrics_port >= 0:
+            self.http, _ = start_http_server(s.metrics_port, addr=s.metrics_host,
+                                             registry=metrics.aggregate_registry())
+            self.metrics_url = f"http://{s.metrics_host}:{self.http.server_port}/metrics"
+        ctx = mp.get_context("spawn")  # never fork a process holding a Zenoh session
+        self.worker_stop = ctx.Event()
+        self.queues = [ctx.Queue() for _ in range(s.workers)]
+        self.responses = ctx.Queue()
+        self.procs = [ctx.Process(target=worker_main, args=(k, s, self.queues[k],
+                                                              self.responses, self.worker_stop),
+                                  name=f"arcf-worker-{k}") for k in range(s.workers)]
+        for p in self.procs:
+            p.start()
+        self.control = ControlPlane(s, self.queues, __version__, responses=self.responses)
+        self.queryable = self.session.declare_queryable(self.keys.control(),
+                                                        self.control.handle_query)
+        # Frames of streams nobody tracks: counted, and answered with a rate-limited error.
+        # The callback only reads the key; it never touches the payload.
+        last_notice: dict[str, float] = {}
+        errors_pub: dict[str, Any] = {}
+
+        def untracked(sample: Any) -> None:
+            try:
+                stream = self.keys.stream_of_frames_key(str(sample.key_expr))
+            except ValueError:
+                return
+            if stream in self.control.tracked_streams():
+                return
+            metrics.ERRORS.labels(kind="no_session").inc()
+            now = time.monotonic()
+            if now - last_notice.get(stream, 0.0) >= 1.0:
+                last_notice[stream] = now
+                pub = errors_pub.get(stream)
+                if pub is None:
+                    pub = errors_pub[stream] = self.session.declare_publisher(
+                        self.keys.errors(stream), congestion_control=zenoh.CongestionControl.DROP)
+                pub.put(encode(ErrorMessage(code="no_session", stream_id=stream,
+                                            message=f"no tracking session on stream {stream!r}")))
+
+        self.watcher = self.session.declare_subscriber(self.keys.all_frames(), untracked)
+        self._wait_for_workers()
+        return self
+
+    def _wait_for_workers(self, timeout: float = 30.0) -> None:
+        deadline = time.monotonic() + timeout
+        key = self.keys.all_workers()
+        while time.monotonic() < deadline:
+            alive = [r for r in self.session.liveliness().get(key, timeout=1.0) if r.ok]
+            if len(alive) >= self.settings.workers:
+                return
+            if any(not p.is_alive() for p in self.procs):
+                raise RuntimeError("a worker process died during start-up")
+            time.sleep(0.05)
+        raise RuntimeError(f"workers not ready after {timeout:.0f} s")
+
+    def request_stop(self, *_: Any) -> None:
+        self._stop.set()
+
+    def wait(self) -> None:
+        while not self._stop.wait(0.5):
+            for k, p in enumerate(self.procs):
+                if not p.is_alive() and not self._stop.is_set():
+                    log.error("worker %d exited (code %s)", k, p.exitcode)
+                    self._stop.set()
+
+    def close(self) -> None:
+        from . import metrics
+
+        self.worker_stop.set()
+        for p in self.procs:
+            p.join(timeout=5)
+            if p.is_alive():
+                p.terminate()
+                p.join(timeout=2)
+            if p.pid:
+                metrics.mark_dead(p.pid)
+        self.responses.put(None)  # ends the control plane's pump thread
+        for q in [*self.queues, self.responses]:
+            q.close()
+            q.join_thread()
+        self.watcher.undeclare()
+        self.queryable.undeclare()
+        self.session.close()
+        if self.http is not None:
+            self.http.shutdown()
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="arcf-service", description=__doc__.splitlines()[0])
+    ap.add_argument("--mode", choices=("router", "peer", "client"))
+    ap.add_argument("--listen", action="append", help="Zenoh listen endpoint (repeatable)")
+    ap.add_argument("--connect", action="append", help="Zenoh connect endpoint (repeatable)")
+    ap.add_argument("--zenoh-config", type=Path, help="Zenoh JSON5 config file")
+    ap.add_argument("--workers", type=int)
+    ap.add_argument("--prefix")
+    ap.add_argument("--frame-queue", type=int, help="newest frames kept per stream")
+    ap.add_argument("--max-payload", type=int, help="largest frame payload in bytes")
+    ap.add_argument("--metrics-port", type=int, help="Prometheus port (0: any, -1: off)")
+    ap.add_argument("--metrics-host")
+    ap.add_argument("--lease-ms", type=int, help="Zenoh lease: how fast a hung peer is noticed")
+    ap.add_argument("--version", action="version", version=f"arcf-service {__version__}")
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
+    args = build_parser().parse_args(argv)
+    try:
+        settings = ServiceSettings.from_env(
+            mode=args.mode, listen=tuple(args.listen) if args.listen else None,
+            connect=tuple(args.connect) if args.connect else None,
+            zenoh_config=args.zenoh_config, workers=args.workers, prefix=args.prefix,
+            frame_queue=args.frame_queue, max_payload=args.max_payload,
+            metrics_port=args.metrics_port, metrics_host=args.metrics_host,
+            lease_ms=args.lease_ms)
+    except ValueError as exc:
+        raise SystemExit(f"arcf-service: {exc}") from exc
+    service = Service(settings)
+    signal.signal(signal.SIGTERM, service.request_stop)
+    signal.signal(signal.SIGINT, service.request_stop)
+    service.start()
+    endpoints = ", ".join(settings.listen if settings.mode == "router" else settings.connect)
+    print(f"arcf-service ready: zenoh {settings.mode} {endpoints}, prefix {settings.prefix}, "
+          f"{settings.workers} workers, metrics {service.metrics_url or 'off'}", flush=True)
+    try:
+        service.wait()
+    finally:
+        service.close()
+        print("arcf-service stopped", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,208 @@
+"""Client SDK for ground stations: publish frames, control sessions, receive results.
+
+    from service.client import TrackingClient
+    with TrackingClient() as client:                      # connects to tcp/127.0.0.1:7447
+        results = client.results("drone-1")                # subscribe before starting
+        ack = client.start("drone-1", (x, y, w, h), preset="arcf-hc")
+        client.publish_frame("drone-1", image)            # numpy BGR/gray, or encoded bytes
+        for r in results.iter(timeout=1.0):
+            print(r.frame_seq, r.box, r.peak, r.aberrance)
+"""
+
+from __future__ import annotations
+
+import queue
+import threading
+import time
+import uuid
+from collections.abc import Callable, Iterator, Sequence
+from typing import Any
+
+import cv2
+import numpy as np
+import zenoh
+
+from schemas import (
+    Ack,
+    ErrorMessage,
+    Frame,
+    KeySpace,
+    ReinitRequest,
+    Result,
+    StartRequest,
+    Status,
+    StatusRequest,
+    StopRequest,
+    decode,
+    encode,
+)
+
+from .transport import open_session
+
+
+class ServiceError(RuntimeError):
+    """The service answered a request with an error (``code`` says which)."""
+
+    def __init__(self, error: ErrorMessage) -> None:
+        super().__init__(f"{error.code}: {error.message}")
+        self.code: str = getattr(error.code, "value", str(error.code))
+        self.error = error
+
+
+class ResultStream:
+    """Results of one stream (or one session), received by a callback or iterated."""
+
+    def __init__(self, client: TrackingClient, key: str,
+                 callback: Callable[[Result], None] | None, maxsize: int) -> None:
+        self._queue: queue.Queue[Result] = queue.Queue(maxsize=maxsize)
+        self.dropped = 0
+        self.malformed = 0
+
+        def on_sample(sample: Any) -> None:
+            try:
+                result = decode(sample.payload.to_bytes(), expected=Result)
+            except ValueError:
+                self.malformed += 1
+                return
+            if callback is not None:
+                callback(result)
+                return
+            try:
+                self._queue.put_nowait(result)
+            except queue.Full:
+                self.dropped += 1
+
+        self._sub = client.session.declare_subscriber(key, on_sample)
+
+    def get(self, timeout: float | None = None) -> Result:
+        """The next result; raises ``queue.Empty`` after ``timeout`` seconds."""
+        return self._queue.get(timeout=timeout)
+
+    def iter(self, timeout: float = 1.0) -> Iterator[Result]:
+        """Results until none arrives for ``timeout`` seconds."""
+        while True:
+            try:
+                yield self._queue.get(timeout=timeout)
+            except queue.Empty:
+                return
+
+    def close(self) -> None:
+        self._sub.undeclare()
+
+
+class TrackingClient:
+    def __init__(
+        self,
+        connect: Sequence[str] = ("tcp/127.0.0.1:7447",),
+        prefix: str = "arcf/v1",
+        mode: str = "client",
+        session: zenoh.Session | None = None,
+    ) -> None:
+        self.keys = KeySpace(prefix)
+        self._own = session is None
+        self.session = session if session is not None else open_session(mode, connect=connect)
+        self._publishers: dict[str, Any] = {}
+        self._seq: dict[str, int] = {}
+        self._lock = threading.Lock()
+
+    # ------------------------------------------------------------------ frames
+    def publish_frame(
+        self,
+        stream_id: str,
+        image: np.ndarray | None = None,
+        *,
+        data: bytes | None = None,
+        encoding: str = "jpeg",
+        seq: int | None = None,
+        capture_ts_ns: int | None = None,
+        quality: int = 90,
+    ) -> int:
+        """Publish one frame (a numpy image, encoded here, or already encoded ``data``).
+
+        Returns its sequence number (consecutive per stream unless given). Frames are sent with
+        congestion control DROP: a slow link loses frames rather than stalling the station.
+        """
+        if (image is None) == (data is None):
+            raise ValueError("give either image or data")
+        width = height = None
+        if image is not None:
+            height, width = image.shape[:2]
+            if encoding == "jpeg":
+                ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, quality])
+            elif encoding == "png":
+                ok, buf = cv2.imencode(".png", image)
+            elif encoding in ("bgr8", "gray8"):
+                ok, buf = True, np.ascontiguousarray(image)
+            else:
+                raise ValueError(f"unknown encoding {encoding!r}")
+            if not ok:
+                raise ValueError("image could not be encoded")
+            data = buf.tobytes()
+        with self._lock:
+            if seq is None:
+                seq = self._seq.get(stream_id, -1) + 1
+            self._seq[stream_id] = seq
+            pub = self._publishers.get(stream_id)
+            if pub is None:
+                pub = self._publishers[stream_id] = self.session.declare_publisher(
+                    self.keys.frames(stream_id),
+                    congestion_control=zenoh.CongestionControl.DROP)
+        frame = Frame(stream_id=stream_id, seq=seq,
+                      capture_ts_ns=capture_ts_ns if capture_ts_ns is not None else time.time_ns(),
+                      encoding=encoding, width=width, height=height, payload=data)
+        pub.put(encode(frame))
+        return seq
+
+    # ------------------------------------------------------------------ control
+    def _request(self, request: Any, timeout: float) -> Any:
+        replies = list(self.session.get(self.keys.control(), payload=encode(request),
+                                        timeout=timeout))
+        for reply in replies:
+            if reply.ok is None:
+                continue
+            message = decode(reply.ok.payload.to_bytes(), expected=(Ack, ErrorMessage, Status))
+            if isinstance(message, ErrorMessage):
+                raise ServiceError(message)
+            return message
+        raise TimeoutError(f"no reply from the service on {self.keys.control()} within "
+                           f"{timeout} s (is arcf-service running and reachable?)")
+
+    def start(self, stream_id: str, box: Sequence[float], preset: str = "arcf-hc", *,
+              overrides: dict[str, Any] | None = None, session_id: str | None = None,
+              frame_seq: int | None = None, timeout: float = 5.0) -> Ack:
+        return self._request(StartRequest(
+            request_id=uuid.uuid4().hex, stream_id=stream_id, session_id=session_id,
+            box=list(box), preset=preset, overrides=overrides or {}, frame_seq=frame_seq),
+            timeout)
+
+    def reinit(self, session_id: str, box: Sequence[float], *, frame_seq: int | None = None,
+               timeout: float = 5.0) -> Ack:
+        return self._request(ReinitRequest(request_id=uuid.uuid4().hex, session_id=session_id,
+                                           box=list(box), frame_seq=frame_seq), timeout)
+
+    def stop(self, session_id: str, timeout: float = 5.0) -> Ack:
+        return self._request(StopRequest(request_id=uuid.uuid4().hex, session_id=session_id),
+                             timeout)
+
+    def status(self, timeout: float = 5.0) -> Status:
+        return self._request(StatusRequest(request_id=uuid.uuid4().hex), timeout)
+
+    # ------------------------------------------------------------------ results
+    def results(self, stream_id: str, session_id: str | None = None,
+                callback: Callable[[Result], None] | None = None,
+                maxsize: int = 10000) -> ResultStream:
+        key = (self.keys.results(stream_id, session_id) if session_id
+               else self.keys.results_of_stream(stream_id))
+        return ResultStream(self, key, callback, maxsize)
+
+    def close(self) -> None:
+        for pub in self._publishers.values():
+            pub.undeclare()
+        if self._own:
+            self.session.close()
+
+    def __enter__(self) -> TrackingClient:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

@@ -1,0 +1,46 @@
+"""Prometheus metrics shared by the main process and the workers (multiprocess mode).
+
+Names follow Prometheus conventions (base units, ``_total`` counters); no label carries a stream
+or session id, so cardinality stays bounded whatever the traffic.
+"""
+
+from __future__ import annotations
+
+from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram, multiprocess
+
+LATENCY_BUCKETS = (0.005, 0.01, 0.02, 0.03, 0.05, 0.075, 0.1, 0.15, 0.2, 0.3, 0.5, 1.0, 2.0, 5.0)
+STEP_BUCKETS = (0.001, 0.002, 0.005, 0.01, 0.02, 0.03, 0.05, 0.075, 0.1, 0.2, 0.5, 1.0)
+
+END_TO_END = Histogram(
+    "arcf_end_to_end_latency_seconds",
+    "Capture timestamp to result published (includes transport and queueing)",
+    buckets=LATENCY_BUCKETS,
+)
+DECODE = Histogram("arcf_decode_seconds", "Image decoding time per frame", buckets=STEP_BUCKETS)
+TRACK = Histogram("arcf_track_seconds", "Tracker time per session and frame", buckets=STEP_BUCKETS)
+FRAMES_RECEIVED = Counter("arcf_frames_received_total", "Frames taken from the network by workers")
+FRAMES_PROCESSED = Counter("arcf_frames_processed_total", "Frames decoded and tracked")
+FRAMES_DROPPED = Counter(
+    "arcf_frames_dropped_total", "Frames skipped: gaps in a stream's sequence numbers"
+)
+RESULTS = Counter("arcf_results_published_total", "Result messages published")
+ERRORS = Counter("arcf_errors_total", "Errors by kind", ["kind"])
+CONTROL = Counter("arcf_control_requests_total", "Control requests by type and outcome",
+                  ["type", "outcome"])
+STREAMS = Gauge("arcf_active_streams", "Streams with at least one session",
+                multiprocess_mode="livesum")
+SESSIONS = Gauge("arcf_active_sessions", "Tracking sessions", multiprocess_mode="livesum")
+BUSY = Gauge("arcf_worker_busy_ratio", "Share of wall time a worker spent working",
+             ["worker"], multiprocess_mode="liveall")
+
+
+def aggregate_registry() -> CollectorRegistry:
+    """A registry that sums the metric files of every process (for the HTTP endpoint)."""
+    registry = CollectorRegistry()
+    multiprocess.MultiProcessCollector(registry)
+    return registry
+
+
+def mark_dead(pid: int) -> None:
+    """Drop a finished worker's live gauges."""
+    multiprocess.mark_process_dead(pid)

@@ -1,0 +1,43 @@
+"""Zenoh sessions for the service and its clients (configuration only; no work in callbacks)."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from pathlib import Path
+
+import zenoh
+
+
+def make_config(
+    mode: str,
+    listen: Sequence[str] = (),
+    connect: Sequence[str] = (),
+    config_file: Path | None = None,
+    lease_ms: int | None = None,
+) -> zenoh.Config:
+    """A Zenoh config: the file (if any), then mode, explicit endpoints and scouting off.
+
+    Endpoints are always explicit (a peer's default listens on every interface) and multicast
+    scouting is off, so a service on loopback stays on loopback.
+    """
+    conf = zenoh.Config.from_file(str(config_file)) if config_file else zenoh.Config()
+    conf.insert_json5("mode", json.dumps(mode))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    if listen:
+        conf.insert_json5("listen/endpoints", json.dumps(list(listen)))
+    if connect:
+        conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
+    if lease_ms:
+        conf.insert_json5("transport/link/tx/lease", str(int(lease_ms)))
+    return conf
+
+
+def open_session(
+    mode: str,
+    listen: Sequence[str] = (),
+    connect: Sequence[str] = (),
+    config_file: Path | None = None,
+    lease_ms: int | None = None,
+) -> zenoh.Session:
+    return zenoh.open(make_config(mode, listen, connect, config_file, lease_ms))

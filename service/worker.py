@@ -1,0 +1,277 @@
+"""A worker process: owns some streams, decodes each frame once, runs every session's tracker.
+
+Frames arrive through a ``RingChannel`` per stream (the newest ``frame_queue`` frames; older ones
+are dropped by Zenoh's side without ever blocking the network) and are taken by this process's
+own loop, never inside a Zenoh callback. Commands (start, reinit, stop) come from the control
+plane over a multiprocessing queue.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import cv2
+import numpy as np
+
+log = logging.getLogger("arcf.service.worker")
+
+
+@dataclass
+class _Session:
+    session_id: str
+    stream_id: str
+    preset: str
+    tracker: Any
+    publisher: Any
+    pending_box: tuple[float, float, float, float] | None = None
+    pending_seq: int | None = None
+    pending_status: str = "initialized"
+    last_seq: int | None = None
+    frames: int = 0
+
+
+@dataclass
+class _Stream:
+    stream_id: str
+    subscriber: Any
+    errors: Any
+    sessions: dict[str, _Session] = field(default_factory=dict)
+    last_seq: int | None = None
+
+
+def decode_image(frame: Any) -> np.ndarray | None:
+    """The frame's pixels as uint8 BGR or gray, or None if the payload does not decode."""
+    data = np.frombuffer(frame.payload, dtype=np.uint8)
+    if frame.encoding in ("jpeg", "png"):
+        image = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+        if image is None:
+            return None
+        if image.dtype != np.uint8:
+            image = cv2.convertScaleAbs(image, alpha=255.0 / max(float(image.max()), 1.0))
+        if image.ndim == 3 and image.shape[2] == 4:
+            image = cv2.cvtColor(image, cv2.COLOR_BGRA2BGR)
+        return image
+    channels = 3 if frame.encoding == "bgr8" else 1
+    image = data.reshape(frame.height, frame.width, channels)
+    return image if channels == 3 else image[..., 0]
+
+
+class Worker:
+    def __init__(self, index: int, settings: Any, commands: Any, responses: Any,
+                 stop: Any) -> None:
+        import zenoh
+
+        from schemas import KeySpace
+
+        from . import metrics
+        from .transport import open_session
+
+        self.index = index
+        self.settings = settings
+        self.commands = commands
+        self.responses = responses
+        self.stop = stop
+        self.metrics = metrics
+        self.keys = KeySpace(settings.prefix)
+        self.zenoh = zenoh
+        self.session = open_session("client", connect=settings.worker_endpoints,
+                                    config_file=settings.zenoh_config, lease_ms=settings.lease_ms)
+        self.token = self.session.liveliness().declare_token(
+            self.keys.worker_token(settings.instance_id, str(index)))
+        self.streams: dict[str, _Stream] = {}
+        self.sessions: dict[str, _Session] = {}
+        self.busy = metrics.BUSY.labels(worker=str(index))
+
+    # ------------------------------------------------------------------ commands
+    def _apply(self, cmd: dict[str, Any]) -> None:
+        """Apply one command and confirm it, so the control plane's ack means "in effect"."""
+        try:
+            self._apply_command(cmd)
+            reply = (cmd.get("id"), True, "")
+        except Exception as exc:  # reported to the requester, never fatal to the worker
+            log.exception("worker %d: command %s failed", self.index, cmd.get("op"))
+            reply = (cmd.get("id"), False, f"{type(exc).__name__}: {exc}")
+        if cmd.get("id") is not None:
+            self.responses.put(reply)
+
+    def _apply_command(self, cmd: dict[str, Any]) -> None:
+        kind = cmd["op"]
+        if kind == "start":
+            self._start(cmd)
+        elif kind == "reinit":
+            s = self.sessions.get(cmd["session_id"])
+            if s is not None:
+                s.pending_box, s.pending_seq = tuple(cmd["box"]), cmd.get("frame_seq")
+                s.pending_status = "reinitialized"
+        elif kind == "stop":
+            self._stop(cmd["session_id"])
+
+    def _start(self, cmd: dict[str, Any]) -> None:
+        from arcf import create_tracker
+
+        stream_id = cmd["stream_id"]
+        stream = self.streams.get(stream_id)
+        if stream is None:
+            sub = self.session.declare_subscriber(
+                self.keys.frames(stream_id),
+                self.zenoh.handlers.RingChannel(self.settings.frame_queue))
+            errors = self.session.declare_publisher(
+                self.keys.errors(stream_id), congestion_control=self.zenoh.CongestionControl.DROP)
+            stream = self.streams[stream_id] = _Stream(stream_id, sub, errors)
+            self.metrics.STREAMS.inc()
+        pub = self.session.declare_publisher(
+            self.keys.results(stream_id, cmd["session_id"]),
+            congestion_control=self.zenoh.CongestionControl.DROP)
+        s = _Session(cmd["session_id"], stream_id, cmd["preset"],
+                     create_tracker(cmd["preset"], **cmd.get("overrides", {})), pub,
+                     pending_box=tuple(cmd["box"]), pending_seq=cmd.get("frame_seq"))
+        stream.sessions[s.session_id] = s
+        self.sessions[s.session_id] = s
+        self.metrics.SESSIONS.inc()
+
+    def _stop(self, session_id: str) -> None:
+        s = self.sessions.pop(session_id, None)
+        if s is None:
+            return
+        s.publisher.undeclare()
+        self.metrics.SESSIONS.dec()
+        stream = self.streams[s.stream_id]
+        stream.sessions.pop(session_id, None)
+        if not stream.sessions:
+            stream.subscriber.undeclare()
+            stream.errors.undeclare()
+            del self.streams[s.stream_id]
+            self.metrics.STREAMS.dec()
+
+    # ------------------------------------------------------------------ frames
+    def _error(self, stream: _Stream, code: str, message: str, seq: int | None) -> None:
+        from schemas import ErrorMessage, encode
+
+        self.metrics.ERRORS.labels(kind=code).inc()
+        stream.errors.put(encode(ErrorMessage(code=code, message=message,
+                                              stream_id=stream.stream_id, frame_seq=seq)))
+
+    def _process(self, stream: _Stream, payload: bytes, received_ns: int) -> None:
+        from arcf import ARCFError
+        from schemas import Frame, Result, SchemaError, decode, encode
+
+        m = self.metrics
+        m.FRAMES_RECEIVED.inc()
+        try:
+            frame = decode(payload, expected=Frame, max_payload=self.settings.max_payload)
+        except SchemaError as exc:
+            self._error(stream, exc.code.value, str(exc), None)
+            return
+        if frame.stream_id != stream.stream_id:
+            self._error(stream, "invalid_request",
+                        f"frame says stream {frame.stream_id!r} on {stream.stream_id!r}", frame.seq)
+            return
+        if stream.last_seq is not None and frame.seq > stream.last_seq + 1:
+            m.FRAMES_DROPPED.inc(frame.seq - stream.last_seq - 1)
+        stream.last_seq = frame.seq if stream.last_seq is None else max(stream.last_seq, frame.seq)
+        t0 = time.perf_counter()
+        image = decode_image(frame)
+        decode_s = time.perf_counter() - t0
+        m.DECODE.observe(decode_s)
+        if image is None:
+            self._error(stream, "decode_error", f"cannot decode {frame.encoding} frame", frame.seq)
+        else:
+            m.FRAMES_PROCESSED.inc()
+        for s in list(stream.sessions.values()):
+            dropped = 0 if s.last_seq is None else max(frame.seq - s.last_seq - 1, 0)
+            status, message, r = "tracking", None, None
+            t1 = time.perf_counter()
+            if image is None:
+                status, message = "error", "frame could not be decoded"
+            elif s.pending_box is not None and (
+                s.pending_seq is None or frame.seq >= s.pending_seq
+            ):
+                try:
+                    r = s.tracker.init(image, s.pending_box)
+                    status = s.pending_status
+                except ARCFError as exc:
+                    status, message = "error", str(exc)
+                    m.ERRORS.labels(kind="invalid_box").inc()
+                s.pending_box = None
+            elif s.tracker.initialized:
+                try:
+                    r = s.tracker.update(image)
+                except ARCFError as exc:
+                    status, message = "error", str(exc)
+                    m.ERRORS.labels(kind="invalid_frame").inc()
+            else:
+                continue  # waiting for the frame its box was drawn on
+            track_s = time.perf_counter() - t1
+            m.TRACK.observe(track_s)
+            s.last_seq = frame.seq
+            s.frames += 1
+            nan = float("nan")
+            published = time.time_ns()
+            result = Result(
+                session_id=s.session_id, stream_id=s.stream_id, frame_seq=frame.seq,
+                capture_ts_ns=frame.capture_ts_ns,
+                box=list(r.box) if r else [nan, nan, nan, nan],
+                peak=r.peak if r else nan, psr=r.psr if r else nan,
+                aberrance=r.aberrance if r else nan,
+                aberrance_release=r.aberrance_release if r else nan,
+                scale=r.scale if r else nan, status=status, dropped=dropped, message=message,
+                received_ts_ns=received_ns, decode_s=decode_s, track_s=track_s,
+                published_ts_ns=published,
+            )
+            s.publisher.put(encode(result))
+            m.RESULTS.inc()
+            if frame.capture_ts_ns > 0:
+                m.END_TO_END.observe(max(published - frame.capture_ts_ns, 0) / 1e9)
+
+    # ------------------------------------------------------------------ loop
+    def run(self) -> None:
+        busy_s, t_window = 0.0, time.monotonic()
+        while not self.stop.is_set():
+            while True:
+                try:
+                    self._apply(self.commands.get_nowait())
+                except queue.Empty:
+                    break
+            worked = False
+            for stream in list(self.streams.values()):
+                sample = stream.subscriber.try_recv()
+                if sample is None:
+                    continue
+                worked = True
+                t0 = time.perf_counter()
+                try:
+                    self._process(stream, sample.payload.to_bytes(), time.time_ns())
+                except Exception:  # a bug must not take the worker (and its streams) down
+                    log.exception("worker %d: unexpected error on stream %s", self.index,
+                                  stream.stream_id)
+                    self.metrics.ERRORS.labels(kind="internal").inc()
+                busy_s += time.perf_counter() - t0
+            if not worked:
+                time.sleep(0.0005)
+            now = time.monotonic()
+            if now - t_window >= 1.0:
+                self.busy.set(busy_s / (now - t_window))
+                busy_s, t_window = 0.0, now
+
+    def close(self) -> None:
+        for sid in list(self.sessions):
+            self._stop(sid)
+        self.token.undeclare()
+        self.session.close()
+
+
+def worker_main(index: int, settings: Any, commands: Any, responses: Any, stop: Any) -> None:
+    """Entry point of a spawned worker process."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the launcher decides when workers stop
+    cv2.setNumThreads(1)
+    worker = Worker(index, settings, commands, responses, stop)
+    try:
+        worker.run()
+    finally:
+        worker.close()

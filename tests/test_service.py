@@ -1,0 +1,241 @@
+"""The service end to end: a real ``arcf-service`` process, a real Zenoh client on loopback,
+real JPEG frames from the shared data, a real HTTP scrape of the metrics endpoint."""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import socket
+import subprocess
+import sys
+import time
+import urllib.request
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+pytest.importorskip("zenoh")
+
+import contextlib
+
+import arcf
+from arcf.data import data_root
+from arcf.eval import load_dataset
+from schemas import KeySpace
+from service.client import ServiceError, TrackingClient
+
+pytestmark = pytest.mark.skipif(not (data_root() / "uav123_10fps").is_dir(),
+                                reason="needs ../shared/data")
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _children(pid: int) -> set[int]:
+    out: set[int] = set()
+    for task in Path(f"/proc/{pid}/task").glob("*"):
+        with contextlib.suppress(OSError):
+            out |= {int(p) for p in (task / "children").read_text().split()}
+    return out
+
+
+class _Service:
+    def __init__(self, *extra: str) -> None:
+        self.endpoint = f"tcp/127.0.0.1:{_free_port()}"
+        metrics_port = _free_port()
+        self.metrics_url = f"http://127.0.0.1:{metrics_port}/metrics"
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "service.app", "--listen", self.endpoint, "--workers", "2",
+             "--metrics-port", str(metrics_port), *extra],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+            cwd=Path(__file__).resolve().parent.parent, env=dict(os.environ))
+        assert self.proc.stdout is not None
+        line = self.proc.stdout.readline()
+        if "ready" not in line:
+            self.proc.kill()
+            raise RuntimeError(f"service did not start: {line!r} {self.proc.stderr.read()}")
+        self.workers = _children(self.proc.pid)
+
+    def metric(self, name: str) -> float:
+        """Sum of every series of a metric (all label values), scraped over HTTP."""
+        text = urllib.request.urlopen(self.metrics_url, timeout=5).read().decode()
+        pattern = rf"^{re.escape(name)}(?:\{{[^}}]*\}})?\s+([0-9.eE+-]+)$"
+        return sum(float(m) for m in re.findall(pattern, text, flags=re.M))
+
+    def stop(self) -> int:
+        self.proc.send_signal(signal.SIGTERM)
+        code = self.proc.wait(timeout=30)
+        return code
+
+
+@pytest.fixture(scope="module")
+def service():
+    svc = _Service("--max-payload", str(2 * 1024 * 1024))
+    yield svc
+    if svc.proc.poll() is None:
+        svc.stop()
+
+
+@pytest.fixture(scope="module")
+def frames():
+    (seq,) = load_dataset("uav123_10fps", sequences=["wakeboard7"])
+    data = [p.read_bytes() for p in seq.frames[:25]]
+    return seq, data
+
+
+def _offline(preset: str, data: list[bytes], box) -> np.ndarray:
+    t = arcf.create_tracker(preset)
+    images = [cv2.imdecode(np.frombuffer(d, np.uint8), cv2.IMREAD_UNCHANGED) for d in data]
+    boxes = [t.init(images[0], box).box] + [t.update(im).box for im in images[1:]]
+    return np.array(boxes)
+
+
+def _lockstep(client, streams: dict[str, tuple[object, int]], data: list[bytes]) -> dict:
+    """Publish frame i on every stream, then wait for frame i's result from every session.
+
+    Lock-step replay makes "one result per frame" independent of the machine's speed (a paced
+    replay on a loaded machine legitimately drops frames: that is tested elsewhere)."""
+    got: dict[str, list] = {name: [] for name in streams}
+    for i, d in enumerate(data):
+        for name in streams:
+            client.publish_frame(name, data=d, seq=i)
+        for name, (results, n_sessions) in streams.items():
+            got[name] += _collect(results, n_sessions, timeout=30.0)
+    return got
+
+
+def _collect(stream, n: int, timeout: float = 60.0) -> list:
+    out, deadline = [], time.monotonic() + timeout
+    while len(out) < n and time.monotonic() < deadline:
+        try:
+            out.append(stream.get(timeout=1.0))
+        except Exception:  # queue.Empty
+            continue
+    return out
+
+
+def test_results_equal_the_library_offline(service, frames) -> None:
+    seq, data = frames
+    with TrackingClient(connect=[service.endpoint]) as client:
+        results = client.results("wb7")
+        ack = client.start("wb7", seq.init_box, preset="arcf-h", frame_seq=0)
+        got = sorted(_lockstep(client, {"wb7": (results, 1)}, data)["wb7"],
+                     key=lambda r: r.frame_seq)
+        client.stop(ack.session_id)
+        results.close()
+    assert [r.frame_seq for r in got] == list(range(len(data)))
+    assert got[0].status == "initialized" and all(r.status == "tracking" for r in got[1:])
+    assert all(r.dropped == 0 for r in got)
+    np.testing.assert_allclose([r.box for r in got], _offline("arcf-h", data, seq.init_box),
+                               atol=1e-9)
+    for r in got:
+        assert r.capture_ts_ns <= r.received_ts_ns <= r.published_ts_ns
+        assert r.track_s > 0 and r.decode_s > 0
+
+
+def test_two_streams_and_several_sessions_do_not_interfere(service, frames) -> None:
+    seq, data = frames
+    box_b = (seq.init_box[0] + 3, seq.init_box[1] + 2, seq.init_box[2], seq.init_box[3])
+    with TrackingClient(connect=[service.endpoint]) as client:
+        ra, rb = client.results("multi-a"), client.results("multi-b")
+        a1 = client.start("multi-a", seq.init_box, preset="arcf-h", frame_seq=0)
+        a2 = client.start("multi-a", seq.init_box, preset="bacf", frame_seq=0)
+        b1 = client.start("multi-b", box_b, preset="arcf-h", frame_seq=0)
+        got = _lockstep(client, {"multi-a": (ra, 2), "multi-b": (rb, 1)}, data)
+        got_a, got_b = got["multi-a"], got["multi-b"]
+        for sid in (a1.session_id, a2.session_id, b1.session_id):
+            client.stop(sid)
+    by_session: dict[str, list] = {}
+    for r in got_a + got_b:
+        by_session.setdefault(r.session_id, []).append(r)
+    expected = {a1.session_id: _offline("arcf-h", data, seq.init_box),
+                a2.session_id: _offline("bacf", data, seq.init_box),
+                b1.session_id: _offline("arcf-h", data, box_b)}
+    for sid, boxes in expected.items():
+        rs = sorted(by_session[sid], key=lambda r: r.frame_seq)
+        assert len(rs) == len(data)
+        np.testing.assert_allclose([r.box for r in rs], boxes, atol=1e-9)
+
+
+def test_control_errors_are_clear(service) -> None:
+    with TrackingClient(connect=[service.endpoint]) as client:
+        with pytest.raises(ServiceError) as e:
+            client.stop("no-such-session")
+        assert e.value.code == "unknown_session"
+        with pytest.raises(ServiceError) as e:
+            client.start("s", (10, 10, 20, 20), preset="kcf")
+        assert e.value.code == "unknown_preset" and "arcf-hc" in str(e.value)
+        with pytest.raises(ServiceError) as e:
+            client.start("s", (10, 10, 20, 20), preset="arcf-h", overrides={"gamma": -1})
+        assert e.value.code == "invalid_parameter"
+        with pytest.raises((ServiceError, ValueError)):
+            client.start("s", (10, 10, 0, 20), preset="arcf-h")  # zero width
+        status = client.status()
+        assert status.workers == 2
+
+
+def test_bad_input_is_counted_and_the_session_goes_on(service, frames) -> None:
+    seq, data = frames
+    keys = KeySpace()
+    errors_before = service.metric("arcf_errors_total")
+    with TrackingClient(connect=[service.endpoint]) as client:
+        results = client.results("bad")
+        errors = []
+        sub = client.session.declare_subscriber(keys.errors("bad"), lambda s: errors.append(s))
+        ack = client.start("bad", seq.init_box, preset="arcf-h", frame_seq=0)
+        raw = client.session.declare_publisher(keys.frames("bad"))
+        client.publish_frame("bad", data=data[0], seq=0)
+        got = _collect(results, 1, timeout=30)
+        raw.put(b"\x93garbage that is not a frame")  # malformed msgpack
+        client.publish_frame("bad", data=b"\xff\xd8 not really a jpeg", seq=1)  # undecodable
+        got += _collect(results, 1, timeout=30)
+        client.publish_frame("bad", data=b"\0" * (3 * 1024 * 1024), seq=2)  # oversized
+        client.publish_frame("nobody-tracks-this", data=data[0], seq=0)  # untracked stream
+        for i in range(3, 8):
+            client.publish_frame("bad", data=data[i - 2], seq=i)
+            got += _collect(results, 1, timeout=30)
+        got.sort(key=lambda r: r.frame_seq)
+        client.stop(ack.session_id)
+        sub.undeclare()
+    statuses = {r.frame_seq: r.status for r in got}
+    assert statuses[0] == "initialized"
+    assert statuses[1] == "error"  # the undecodable frame, reported to the session
+    assert all(statuses[i] == "tracking" for i in range(3, 8))  # and tracking went on
+    assert len(errors) >= 3
+    time.sleep(0.5)
+    assert service.metric("arcf_errors_total") >= errors_before + 4
+
+
+def test_metrics_count_what_was_sent(service, frames) -> None:
+    seq, data = frames
+    before_results = service.metric("arcf_results_published_total")
+    before_frames = service.metric("arcf_frames_processed_total")
+    with TrackingClient(connect=[service.endpoint]) as client:
+        results = client.results("count")
+        ack = client.start("count", seq.init_box, preset="bacf", frame_seq=0)
+        got = _lockstep(client, {"count": (results, 1)}, data[:10])["count"]
+        client.stop(ack.session_id)
+    time.sleep(0.5)
+    assert len(got) == 10
+    assert service.metric("arcf_results_published_total") - before_results == 10
+    assert service.metric("arcf_frames_processed_total") - before_frames == 10
+    assert service.metric("arcf_end_to_end_latency_seconds_count") >= 10
+    text = urllib.request.urlopen(service.metrics_url, timeout=5).read().decode()
+    assert "count" not in re.findall(r'stream="([^"]+)"', text)  # no per-stream labels
+
+
+def test_sigterm_stops_everything(frames) -> None:
+    svc = _Service()
+    workers = svc.workers
+    assert len(workers) >= 2
+    assert svc.stop() == 0
+    time.sleep(0.5)
+    for pid in workers:
+        assert not Path(f"/proc/{pid}").exists() or "zombie" in Path(
+            f"/proc/{pid}/status").read_text().lower()
