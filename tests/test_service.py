@@ -20,6 +20,7 @@ import pytest
 pytest.importorskip("zenoh")
 
 import contextlib
+import itertools
 
 import arcf
 from arcf.data import data_root
@@ -239,3 +240,55 @@ def test_sigterm_stops_everything(frames) -> None:
     for pid in workers:
         assert not Path(f"/proc/{pid}").exists() or "zombie" in Path(
             f"/proc/{pid}/status").read_text().lower()
+
+
+def test_flooded_stream_drops_are_accounted_and_other_streams_unaffected(service, frames) -> None:
+    """A stream published faster than its tracker runs keeps only the newest frames; every
+    frame is either tracked or counted in the next result's ``dropped``. A paced stream on the
+    same service meanwhile gets every one of its frames."""
+    seq, data = frames
+    n_flood = 60
+    with TrackingClient(connect=[service.endpoint]) as client:
+        flood, calm = client.results("flood"), client.results("calm")
+        a = client.start("flood", seq.init_box, preset="arcf-hc", frame_seq=0)
+        b = client.start("calm", seq.init_box, preset="bacf", frame_seq=0)
+        calm_got = []
+        for i in range(n_flood):  # as fast as possible: far faster than arcf-hc runs
+            client.publish_frame("flood", data=data[i % len(data)], seq=i)
+            if i % 6 == 0:  # the calm stream, in lock-step at its own pace
+                client.publish_frame("calm", data=data[(i // 6) % len(data)], seq=i // 6)
+                calm_got += _collect(calm, 1, timeout=30)
+        flood_got = []
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline and (not flood_got or
+                                                flood_got[-1].frame_seq < n_flood - 1):
+            flood_got += _collect(flood, 1, timeout=2)
+        client.stop(a.session_id)
+        client.stop(b.session_id)
+    seqs = [r.frame_seq for r in flood_got]
+    assert seqs == sorted(seqs) and seqs[-1] == n_flood - 1  # the newest frame is never lost
+    # accounting: frames before the first result, plus each gap, equals what was skipped
+    for prev, cur in itertools.pairwise(flood_got):
+        assert cur.dropped == cur.frame_seq - prev.frame_seq - 1
+    skipped = flood_got[0].frame_seq + sum(r.dropped for r in flood_got[1:])
+    assert skipped + len(flood_got) == n_flood
+    assert skipped > 0  # it really was flooded
+    assert [r.frame_seq for r in calm_got] == list(range(len(calm_got)))
+    assert all(r.dropped == 0 for r in calm_got)
+
+
+def test_wrong_schema_version_is_counted(service) -> None:
+    import msgpack
+
+    keys = KeySpace()
+    before = service.metric("arcf_errors_total")
+    with TrackingClient(connect=[service.endpoint]) as client:
+        ack = client.start("version", (10, 10, 20, 20), preset="bacf")
+        client.session.put(keys.frames("version"), msgpack.packb(
+            {"v": 2, "type": "frame", "stream_id": "version", "seq": 0, "capture_ts_ns": 1,
+             "encoding": "jpeg", "payload": b"x"}, use_bin_type=True))
+        time.sleep(0.5)
+        client.stop(ack.session_id)
+    text = urllib.request.urlopen(service.metrics_url, timeout=5).read().decode()
+    assert 'arcf_errors_total{kind="unsupported_version"}' in text
+    assert service.metric("arcf_errors_total") >= before + 1
