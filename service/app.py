@@ -109,11 +109,41 @@ class Service:
         self._stop.set()
 
     def wait(self) -> None:
-        while not self._stop.wait(0.5):
+        while not self._stop.wait(0.2):
             for k, p in enumerate(self.procs):
                 if not p.is_alive() and not self._stop.is_set():
-                    log.error("worker %d exited (code %s)", k, p.exitcode)
-                    self._stop.set()
+                    self._replace_worker(k)
+
+    def _replace_worker(self, k: int) -> None:
+        """Supervision: a dead worker is replaced at once; only its own sessions are lost, and
+        their streams are told so on their error keys (clients start them again)."""
+        import zenoh
+
+        from schemas import ErrorMessage, encode
+
+        from . import metrics
+        from .worker import worker_main
+
+        old = self.procs[k]
+        log.error("worker %d died (exit code %s); starting a replacement", k, old.exitcode)
+        metrics.ERRORS.labels(kind="worker_died").inc()
+        if old.pid:
+            metrics.mark_dead(old.pid)
+        ctx = mp.get_context("spawn")
+        queue = ctx.Queue()  # the old one may be locked by the killed process
+        self.queues[k] = queue
+        proc = ctx.Process(target=worker_main, args=(k, self.settings, queue, self.responses,
+                                                     self.worker_stop), name=f"arcf-worker-{k}")
+        proc.start()
+        self.procs[k] = proc
+        for rec in self.control.worker_replaced(k, queue):
+            self.session.put(
+                self.keys.errors(rec.stream_id),
+                encode(ErrorMessage(code="internal", stream_id=rec.stream_id,
+                                    session_id=rec.session_id,
+                                    message=f"worker {k} died; session {rec.session_id} was "
+                                    "lost, start it again")),
+                congestion_control=zenoh.CongestionControl.DROP)
 
     def close(self) -> None:
         from . import metrics

@@ -88,6 +88,16 @@ class ControlPlane:
         if not slot[0]:
             raise _Refused("internal", f"worker {worker} failed: {slot[1]}")
 
+    def worker_replaced(self, worker: int, new_queue: Any) -> list[SessionRecord]:
+        """A worker died and a new one took its place: its sessions are gone (their trackers
+        lived in that process). Forget them and return them so their streams can be told."""
+        with self.lock:
+            lost = [r for r in self.sessions.values() if r.worker == worker]
+            for r in lost:
+                del self.sessions[r.session_id]
+            self.queues = [*self.queues[:worker], new_queue, *self.queues[worker + 1:]]
+        return lost
+
     def tracked_streams(self) -> set[str]:
         with self.lock:
             return {r.stream_id for r in self.sessions.values()}
