@@ -237,17 +237,6 @@ def test_metrics_count_what_was_sent(service, frames) -> None:
     assert "count" not in re.findall(r'stream="([^"]+)"', text)  # no per-stream labels
 
 
-def test_sigterm_stops_everything(frames) -> None:
-    svc = _Service()
-    workers = svc.workers
-    assert len(workers) >= 2
-    assert svc.stop() == 0
-    time.sleep(0.5)
-    for pid in workers:
-        assert not Path(f"/proc/{pid}").exists() or "zombie" in Path(
-            f"/proc/{pid}/status").read_text().lower()
-
-
 def test_flooded_stream_drops_are_accounted_and_other_streams_unaffected(service, frames) -> None:
     """A stream published faster than its tracker runs keeps only the newest frames; every
     frame is either tracked or counted in the next result's ``dropped``. A paced stream on the
@@ -345,3 +334,49 @@ def test_a_killed_worker_is_replaced_and_only_its_sessions_are_lost(frames) -> N
         assert svc.metric("arcf_errors_total") >= 1
     finally:
         assert svc.stop() == 0
+
+
+def test_reinit_numpy_frames_and_callbacks(service, frames) -> None:
+    """Raw BGR frames published from numpy arrays (exact pixels), results by callback, and a
+    re-initialisation mid-stream that matches a library tracker re-initialised on that frame."""
+    seq, data = frames
+    # half-size frames: a raw 1280x720 BGR frame (2.8 MB) exceeds this service's 2 MiB limit
+    images = [cv2.resize(cv2.imdecode(np.frombuffer(d, np.uint8), cv2.IMREAD_COLOR), (640, 360),
+                         interpolation=cv2.INTER_AREA) for d in data[:8]]
+    init_box = tuple(v / 2 for v in seq.init_box)
+    new_box = tuple(float(v) / 2 for v in seq.groundtruth[4])
+    received: list = []
+    with TrackingClient(connect=[service.endpoint]) as client:
+        sub = client.results("raw", callback=received.append)
+        ack = client.start("raw", init_box, preset="arcf-h", frame_seq=0)
+        for i, image in enumerate(images):
+            if i == 4:
+                client.reinit(ack.session_id, new_box, frame_seq=4)
+            client.publish_frame("raw", image, encoding="bgr8", seq=i)
+            deadline = time.monotonic() + 10
+            while len(received) <= i and time.monotonic() < deadline:
+                time.sleep(0.01)
+        client.stop(ack.session_id)
+        sub.close()
+    t = arcf.create_tracker("arcf-h")
+    expected = [t.init(images[0], init_box).box]
+    expected += [t.update(im).box for im in images[1:4]]
+    expected += [t.init(images[4], new_box).box]
+    expected += [t.update(im).box for im in images[5:]]
+    got = sorted(received, key=lambda r: r.frame_seq)
+    assert [str(getattr(r.status, "value", r.status)) for r in got] == (
+        ["initialized"] + ["tracking"] * 3 + ["reinitialized"] + ["tracking"] * 3)
+    np.testing.assert_allclose([r.box for r in got], expected, atol=1e-9)
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_signals_stop_everything(sig) -> None:
+    svc = _Service()
+    workers = svc.workers
+    assert len(workers) == 2
+    svc.proc.send_signal(sig)
+    assert svc.proc.wait(timeout=30) == 0
+    time.sleep(0.5)
+    for pid in workers:
+        assert not Path(f"/proc/{pid}").exists() or "zombie" in Path(
+            f"/proc/{pid}/status").read_text().lower()
