@@ -181,8 +181,24 @@ def test_control_errors_are_clear(service) -> None:
         with pytest.raises(ServiceError) as e:
             client.start("s", (10, 10, 20, 20), preset="arcf-h", overrides={"gamma": -1})
         assert e.value.code == "invalid_parameter"
-        with pytest.raises((ServiceError, ValueError)):
-            client.start("s", (10, 10, 0, 20), preset="arcf-h")  # zero width
+        with pytest.raises(ValueError):  # the SDK refuses it before sending ...
+            client.start("s", (10, 10, 0, 20), preset="arcf-h")
+        # ... and the service refuses it too when a client sends it anyway
+        import msgpack
+
+        from schemas import ErrorMessage, decode
+
+        for box, code in (([10, 10, 0, 20], "invalid_box"), ([1, 2, float("nan"), 4],
+                                                               "invalid_box")):
+            raw = msgpack.packb({"v": 1, "type": "start", "request_id": "r1", "stream_id": "s",
+                                 "box": box, "preset": "arcf-h"}, use_bin_type=True)
+            (reply,) = list(client.session.get(KeySpace().control(), payload=raw, timeout=5))
+            err = decode(reply.ok.payload.to_bytes(), expected=ErrorMessage)
+            assert getattr(err.code, "value", err.code) == code
+            assert "box" in err.message
+        (reply,) = list(client.session.get(KeySpace().control(), payload=b"\xc1junk", timeout=5))
+        err = decode(reply.ok.payload.to_bytes(), expected=ErrorMessage)
+        assert getattr(err.code, "value", err.code) == "malformed_message"
         status = client.status()
         assert status.workers == 2
 
