@@ -1,0 +1,41 @@
+"""A short load against a real service: the report's invariants hold."""
+
+from __future__ import annotations
+
+import pytest
+
+pytest.importorskip("zenoh")
+
+from service_harness import ServiceProcess
+
+from arcf.data import data_root
+from arcf.eval import load_dataset
+from service.loadtest import markdown, run_load
+
+pytestmark = pytest.mark.skipif(not (data_root() / "uav123_10fps").is_dir(),
+                                reason="needs ../shared/data")
+
+
+def test_short_load_accounts_for_every_frame() -> None:
+    seqs = load_dataset("uav123_10fps", sequences=["wakeboard7", "truck4_1"])
+    svc = ServiceProcess()
+    try:
+        report = run_load([svc.endpoint], seqs, streams=3, preset="bacf", fps=10.0,
+                          duration=4.0, max_frames=30, stagger=0.1,
+                          metrics_url=svc.metrics_url, progress=False)
+    finally:
+        assert svc.stop() == 0
+    assert report["streams"] == 3 and len(report["per_stream"]) == 3
+    assert report["frames_sent"] > 0
+    # every frame has a result or is counted as dropped; none vanishes
+    assert report["missing"] == 0
+    assert report["results"] + report["dropped_by_service"] == report["frames_sent"]
+    lat = report["latency_ms"]
+    assert 0 < lat["p50"] <= lat["p95"] <= lat["p99"] <= lat["max"]
+    assert report["metrics_agree"]
+    assert report["metrics_delta"]["arcf_results_published_total"] == report["results"]
+    for s in report["per_stream"]:
+        if s["dropped_by_service"] == 0:  # nothing dropped: identical to the offline run
+            assert s["precision20"] == pytest.approx(s["offline_precision20"])
+            assert s["auc"] == pytest.approx(s["offline_auc"])
+    assert "| 3 | bacf |" in markdown([report])
