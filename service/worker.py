@@ -43,6 +43,25 @@ class _Stream:
     last_seq: int | None = None
 
 
+def _warm_up() -> None:
+    """Import the tracker library and run each preset once on a synthetic frame.
+
+    Without it the first session on a worker pays for the imports, FFT plan caches and feature
+    buffers (hundreds of ms), which shows up as a latency spike on the first frames.
+    """
+    from arcf import PRESETS, create_tracker
+
+    rng = np.random.default_rng(0)
+    frame = cv2.GaussianBlur(rng.integers(0, 255, (240, 320, 3), dtype=np.uint8), (0, 0), 3)
+    for name in PRESETS:
+        try:
+            t = create_tracker(name)
+            t.init(frame, (140, 100, 40, 30))
+            t.update(frame)
+        except Exception:  # e.g. no Color Names table here: that preset warms on first use
+            log.debug("warm-up of %s skipped", name, exc_info=True)
+
+
 def decode_image(frame: Any) -> np.ndarray | None:
     """The frame's pixels as uint8 BGR or gray, or None if the payload does not decode."""
     data = np.frombuffer(frame.payload, dtype=np.uint8)
@@ -78,6 +97,7 @@ class Worker:
         self.metrics = metrics
         self.keys = KeySpace(settings.prefix)
         self.zenoh = zenoh
+        _warm_up()  # before the liveliness token: "ready" means no first-frame import stall
         self.session = open_session("client", connect=settings.worker_endpoints,
                                     config_file=settings.zenoh_config, lease_ms=settings.lease_ms)
         self.token = self.session.liveliness().declare_token(
