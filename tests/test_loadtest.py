@@ -38,4 +38,5 @@ def test_short_load_accounts_for_every_frame() -> None:
         if s["dropped_by_service"] == 0:  # nothing dropped: identical to the offline run
             assert s["precision20"] == pytest.approx(s["offline_precision20"])
             assert s["auc"] == pytest.approx(s["offline_auc"])
+    assert report["library_fps"] > 0  # the library's own throughput, same frames, same run
     assert "| 3 | bacf |" in markdown([report])
