@@ -31,8 +31,9 @@ import numpy as np
 from arcf.data import data_root
 from arcf.eval import load_dataset, read_results, score_sequence, write_results
 from arcf.eval.metrics import centers
+from arcf.eval.runner import DATASET_FOLDERS
 
-DATASETS = {"uav123_10fps": "UAV123_10fps", "dtb70": "DTB70", "uavdt": "UAVDT"}
+DATASETS = DATASET_FOLDERS  # our dataset names -> published-results folder names
 CONFIGS = {
     "arcf-hc:paper": ("arcf-hc", {"aberrance": "paper"}, "ARCF-HC"),
     "arcf-hc:release": ("arcf-hc", {"aberrance": "release"}, "ARCF-HC"),

@@ -17,6 +17,9 @@ from typing import Any
 import cv2
 import numpy as np
 
+from arcf import ARCFError, create_tracker
+from schemas import ErrorMessage, Frame, KeySpace, Result, SchemaError, decode, encode
+
 log = logging.getLogger("arcf.service.worker")
 
 
@@ -49,7 +52,7 @@ def _warm_up() -> None:
     Without it the first session on a worker pays for the imports, FFT plan caches and feature
     buffers (hundreds of ms), which shows up as a latency spike on the first frames.
     """
-    from arcf import PRESETS, create_tracker
+    from arcf import PRESETS
 
     rng = np.random.default_rng(0)
     frame = cv2.GaussianBlur(rng.integers(0, 255, (240, 320, 3), dtype=np.uint8), (0, 0), 3)
@@ -84,9 +87,7 @@ class Worker:
                  stop: Any) -> None:
         import zenoh
 
-        from schemas import KeySpace
-
-        from . import metrics
+        from . import metrics  # after the launcher set PROMETHEUS_MULTIPROC_DIR
         from .transport import open_session
 
         self.index = index
@@ -131,8 +132,6 @@ class Worker:
             self._stop(cmd["session_id"])
 
     def _start(self, cmd: dict[str, Any]) -> None:
-        from arcf import create_tracker
-
         stream_id = cmd["stream_id"]
         stream = self.streams.get(stream_id)
         if stream is None:
@@ -169,16 +168,11 @@ class Worker:
 
     # ------------------------------------------------------------------ frames
     def _error(self, stream: _Stream, code: str, message: str, seq: int | None) -> None:
-        from schemas import ErrorMessage, encode
-
         self.metrics.ERRORS.labels(kind=code).inc()
         stream.errors.put(encode(ErrorMessage(code=code, message=message,
                                               stream_id=stream.stream_id, frame_seq=seq)))
 
     def _process(self, stream: _Stream, payload: bytes, received_ns: int) -> None:
-        from arcf import ARCFError
-        from schemas import Frame, Result, SchemaError, decode, encode
-
         m = self.metrics
         m.FRAMES_RECEIVED.inc()
         try:
