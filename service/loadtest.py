@@ -18,7 +18,9 @@ what was observed.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
+import os
 import re
 import subprocess
 import sys
@@ -47,8 +49,6 @@ class StreamReport:
     auc: float = float("nan")
     offline_precision20: float = float("nan")
     offline_auc: float = float("nan")
-    #: The library alone in this process on the same frames: decode + track, frames per second.
-    library_fps: float = float("nan")
 
 
 def _percentiles(values: list[float]) -> dict[str, float]:
@@ -57,6 +57,81 @@ def _percentiles(values: list[float]) -> dict[str, float]:
     a = np.asarray(values) * 1e3
     return {"p50": float(np.percentile(a, 50)), "p95": float(np.percentile(a, 95)),
             "p99": float(np.percentile(a, 99)), "max": float(a.max())}
+
+
+_TICK = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
+
+
+def _cpu_seconds(pid: int) -> float:
+    """User + system CPU time of one process, from /proc (0 if it is gone)."""
+    with contextlib.suppress(OSError, IndexError, ValueError):
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / _TICK
+    return 0.0
+
+
+def _process_tree(pid: int) -> set[int]:
+    """``pid`` and all its descendants (the service's main process and its workers)."""
+    parents: dict[int, int] = {}
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        with contextlib.suppress(OSError, IndexError, ValueError):
+            parents[int(stat.parent.name)] = int(stat.read_text().rsplit(")", 1)[1].split()[1])
+    tree, grew = {pid}, True
+    while grew:
+        new = {c for c, p in parents.items() if p in tree} - tree
+        tree |= new
+        grew = bool(new)
+    return tree
+
+
+def _machine_ticks() -> tuple[int, int]:
+    """(busy, total) CPU ticks of the whole machine since boot, from /proc/stat."""
+    with contextlib.suppress(OSError, ValueError):
+        values = [int(v) for v in Path("/proc/stat").read_text().split("\n")[0].split()[1:]]
+        idle = values[3] + (values[4] if len(values) > 4 else 0)
+        return sum(values) - idle, sum(values)
+    return 0, 0
+
+
+class CpuMeter:
+    """CPU used during a run by this load generator, the service (if its pid is known) and the
+    whole machine, in cores (CPU seconds per wall second). On a small machine the generator
+    competes with the workers, so its share has to be known before capacity is read."""
+
+    def __init__(self, service_pid: int | None = None) -> None:
+        self.service = sorted(_process_tree(service_pid)) if service_pid else []
+        self.t0 = time.monotonic()
+        self.own0 = time.process_time()
+        self.svc0 = {p: _cpu_seconds(p) for p in self.service}
+        self.machine0 = _machine_ticks()
+
+    def read(self) -> dict[str, float]:
+        wall = max(time.monotonic() - self.t0, 1e-9)
+        busy1, total1 = _machine_ticks()
+        busy0, total0 = self.machine0
+        ncpu = os.cpu_count() or 1
+        out = {"cpus": float(ncpu),
+               "generator_cores": (time.process_time() - self.own0) / wall,
+               "machine_cores": ncpu * (busy1 - busy0) / max(total1 - total0, 1)}
+        if self.service:
+            out["service_cores"] = sum(_cpu_seconds(p) - c for p, c in self.svc0.items()) / wall
+        return out
+
+
+def time_breakdown(delta: dict[str, float]) -> dict[str, float]:
+    """Mean milliseconds per frame spent decoding, tracking, and everywhere else (transport in,
+    queueing, message decoding and result publishing), from the service's own histograms."""
+
+    def mean(name: str) -> float:
+        n = delta.get(f"{name}_count", 0.0)
+        return 1e3 * delta.get(f"{name}_sum", 0.0) / n if n else float("nan")
+
+    decode, track = mean("arcf_decode_seconds"), mean("arcf_track_seconds")
+    e2e = mean("arcf_end_to_end_latency_seconds")
+    frames = delta.get("arcf_decode_seconds_count", 0.0)
+    per_frame = delta.get("arcf_track_seconds_count", 0.0) / frames if frames else float("nan")
+    return {"decode_ms": decode, "track_ms": track, "sessions_per_frame": per_frame,
+            "end_to_end_ms": e2e, "other_ms": e2e - decode - track * per_frame}
 
 
 def scrape(url: str | None) -> dict[str, float]:
@@ -71,6 +146,71 @@ def scrape(url: str | None) -> dict[str, float]:
     return out
 
 
+def _offline(preset: str, seq: Any, data: list[bytes]) -> tuple[float, float]:
+    """The library alone, in this process, on the same JPEG bytes: (P@20, AUC)."""
+    import cv2
+
+    import arcf
+    from arcf.eval import score_sequence
+
+    t = arcf.create_tracker(preset)
+    boxes = []
+    for i, d in enumerate(data):
+        frame = cv2.imdecode(np.frombuffer(d, np.uint8), cv2.IMREAD_UNCHANGED)
+        boxes.append((t.init(frame, seq.init_box) if i == 0 else t.update(frame)).box)
+    sc = score_sequence(np.array(boxes), seq.groundtruth[: len(data)])
+    return sc.precision20, sc.auc
+
+
+def _library_loop(preset: str, items: list[tuple[tuple[float, ...], list[bytes]]],
+                  seconds: float, start: Any, out: Any) -> None:
+    """One library process: decode + track the sequences in turn for ``seconds`` (spawned)."""
+    import cv2
+
+    import arcf
+
+    cv2.setNumThreads(1)  # as in a service worker: one core per process
+    tracker = arcf.create_tracker(preset)
+    box, data = items[0]
+    tracker.init(cv2.imdecode(np.frombuffer(data[0], np.uint8), cv2.IMREAD_UNCHANGED), box)
+    start.wait()  # all processes start timing together, after their imports and warm-up
+    frames, t0 = 0, time.perf_counter()
+    while time.perf_counter() - t0 < seconds:
+        for box, data in items:
+            for i, d in enumerate(data):
+                frame = cv2.imdecode(np.frombuffer(d, np.uint8), cv2.IMREAD_UNCHANGED)
+                tracker.init(frame, box) if i == 0 else tracker.update(frame)
+                frames += 1
+                if time.perf_counter() - t0 >= seconds:
+                    break
+            else:
+                continue
+            break
+    out.put(frames / (time.perf_counter() - t0))
+
+
+def library_throughput(preset: str, items: list[tuple[tuple[float, ...], list[bytes]]],
+                       processes: int = 1, seconds: float = 10.0) -> float:
+    """Frames per second (decode + track, the work a worker does per frame) of ``processes``
+    library processes running side by side on the same frames, with no service in the way.
+
+    One process is the per-core yardstick of the issue; as many processes as workers is the
+    ceiling the service could reach on this machine."""
+    import multiprocessing as mp
+
+    ctx = mp.get_context("spawn")
+    start, out = ctx.Barrier(processes), ctx.Queue()
+    procs = [ctx.Process(target=_library_loop, args=(preset, items, seconds, start, out),
+                         daemon=True) for _ in range(processes)]
+    for proc in procs:
+        proc.start()
+    try:
+        return float(sum(out.get(timeout=seconds + 120) for _ in procs))
+    finally:
+        for proc in procs:
+            proc.join(timeout=10)
+
+
 def run_load(
     connect: list[str],
     sequences: list[Any],
@@ -82,13 +222,27 @@ def run_load(
     duration: float = 20.0,
     max_frames: int = 0,
     stagger: float = 0.2,
+    loop: bool = False,
     metrics_url: str | None = None,
+    service_pid: int | None = None,
     prefix: str = "arcf/v1",
     progress: bool = True,
     offline: bool = True,
+    reference_seconds: float = 10.0,
+    reference_processes: int | None = None,
+    cache: dict[Any, Any] | None = None,
 ) -> dict[str, Any]:
-    """Run one load level and return its report (a JSON-able dict)."""
-    import arcf
+    """Run one load level and return its report (a JSON-able dict).
+
+    With ``loop`` a stream replays its sequence again from the start when it runs out (the
+    sessions are re-initialised on the ground truth's first box at each wrap), so a run can last
+    longer than the sequence; accuracy is scored on the first pass.
+
+    Before the load, the library's own throughput on the same frames is measured for
+    ``reference_seconds`` (0 skips it): one process, and ``reference_processes`` side by side
+    (default: one per CPU, like the service's workers). ``cache`` keeps those and the offline
+    accuracy runs across the levels of a sweep.
+    """
     from arcf.eval import score_sequence
 
     from .client import TrackingClient
@@ -97,15 +251,29 @@ def run_load(
     results: dict[str, list[tuple[Any, int]]] = {}
     sent: dict[str, int] = {}
     lock = threading.Lock()
-    stop_at = time.monotonic() + duration + stagger * streams
     plan = []
     for k in range(streams):
         seq = sequences[k % len(sequences)]
         n = len(seq) if not max_frames else min(len(seq), max_frames)
         plan.append((f"load-{k}-{seq.name}", seq, [p.read_bytes() for p in seq.frames[:n]]))
+    cache = cache if cache is not None else {}
+    workers = reference_processes or os.cpu_count() or 1
+    reference = {"library_fps": float("nan"), "library_parallel_fps": float("nan"),
+                 "library_processes": workers}
+    if reference_seconds > 0:
+        items, seen = [], set()
+        for _, seq, data in plan:
+            if seq.name not in seen:
+                seen.add(seq.name)
+                items.append((tuple(seq.init_box), data))
+        key = ("reference", preset, tuple(sorted(seen)), workers, reference_seconds)
+        if key not in cache:
+            cache[key] = (library_throughput(preset, items, 1, reference_seconds),
+                          library_throughput(preset, items, workers, reference_seconds))
+        reference["library_fps"], reference["library_parallel_fps"] = cache[key]
 
     with TrackingClient(connect=connect, prefix=prefix) as client:
-        subs, acks = [], []
+        subs, acks = [], {}
         for name, seq, _ in plan:
             results[name] = []
             sent[name] = 0
@@ -115,24 +283,32 @@ def run_load(
                     results[name].append((r, time.time_ns()))
 
             subs.append(client.results(name, callback=on_result))
-            for _ in range(sessions_per_stream):
-                acks.append(client.start(name, seq.init_box, preset=preset, frame_seq=0))
+            acks[name] = [client.start(name, seq.init_box, preset=preset, frame_seq=0)
+                          for _ in range(sessions_per_stream)]
+
+        ended_ns: dict[str, int] = {}
 
         def publisher(k: int) -> None:
-            name, _seq, data = plan[k]
+            name, seq, data = plan[k]
             time.sleep(k * stagger)
             t0 = time.monotonic()
-            for i, d in enumerate(data):
-                if time.monotonic() > stop_at:
-                    break
-                client.publish_frame(name, data=d, seq=i)
-                sent[name] = i + 1
+            limit = (max_frames or None) if loop else len(data)
+            i = 0
+            while time.monotonic() <= stop_at and (limit is None or i < limit):
+                if i and i % len(data) == 0:  # a new pass: start over from the first box
+                    for ack in acks[name]:
+                        client.reinit(ack.session_id, seq.init_box, frame_seq=i)
+                client.publish_frame(name, data=data[i % len(data)], seq=i)
+                sent[name] = i = i + 1
                 if fps > 0:
-                    time.sleep(max(0.0, t0 + (i + 1) / fps - time.monotonic()))
+                    time.sleep(max(0.0, t0 + i / fps - time.monotonic()))
+            ended_ns[name] = time.time_ns()
 
         threads = [threading.Thread(target=publisher, args=(k,), daemon=True)
                    for k in range(streams)]
-        start = time.monotonic()
+        start, start_ns = time.monotonic(), time.time_ns()
+        stop_at = start + duration + stagger * streams
+        cpu = CpuMeter(service_pid)
         for t in threads:
             t.start()
         while any(t.is_alive() for t in threads):
@@ -157,8 +333,10 @@ def run_load(
                 break
             time.sleep(0.05)
         elapsed = time.monotonic() - start
-        for ack in acks:
-            client.stop(ack.session_id)
+        cpu_use = cpu.read()
+        for session_acks in acks.values():
+            for ack in session_acks:
+                client.stop(ack.session_id)
         for s in subs:
             s.close()
         if progress:
@@ -178,6 +356,7 @@ def run_load(
         all_lat += lat
         rep.latency_ms = _percentiles(lat)
         rep.result_rate = len(rs) / elapsed if elapsed > 0 else 0.0
+        first_pass = min(sent[name], len(data))
         dropped = missing = 0
         p20, aucs = [], []
         for session_results in by_session.values():
@@ -186,16 +365,16 @@ def run_load(
             d = first + sum(r.dropped for r, _ in session_results[1:])
             dropped += d
             missing += sent[name] - len(session_results) - d
-            n = sent[name]
-            boxes = np.full((n, 4), np.nan)
+            boxes = np.full((first_pass, 4), np.nan)
+            for r, _ in session_results:
+                if r.frame_seq < first_pass:
+                    boxes[r.frame_seq] = r.box
             last = None
-            for r, _ in session_results:  # a dropped frame keeps the previous box
-                boxes[r.frame_seq] = r.box
-            for i in range(n):
+            for i in range(first_pass):  # a dropped frame keeps the previous box
                 if np.isnan(boxes[i, 0]) and last is not None:
                     boxes[i] = last
                 last = boxes[i] if not np.isnan(boxes[i, 0]) else last
-            sc = score_sequence(np.nan_to_num(boxes, nan=0.0), seq.groundtruth[:n])
+            sc = score_sequence(np.nan_to_num(boxes, nan=0.0), seq.groundtruth[:first_pass])
             p20.append(sc.precision20)
             aucs.append(sc.auc)
         # a session that produced no result at all is missing every frame
@@ -203,36 +382,47 @@ def run_load(
         rep.dropped_by_service, rep.missing = dropped, missing
         rep.precision20 = float(np.mean(p20)) if p20 else float("nan")
         rep.auc = float(np.mean(aucs)) if aucs else float("nan")
-        if offline and sent[name]:
-            import cv2
-
-            t = arcf.create_tracker(preset)
-            t0 = time.perf_counter()
-            ob = []
-            for i, d in enumerate(data[: sent[name]]):
-                frame = cv2.imdecode(np.frombuffer(d, np.uint8), cv2.IMREAD_UNCHANGED)
-                ob.append((t.init(frame, seq.init_box) if i == 0 else t.update(frame)).box)
-            rep.library_fps = sent[name] / (time.perf_counter() - t0)
-            osc = score_sequence(np.array(ob), seq.groundtruth[: sent[name]])
-            rep.offline_precision20, rep.offline_auc = osc.precision20, osc.auc
+        if offline and first_pass:
+            key = ("offline", preset, seq.name, first_pass)
+            if key not in cache:
+                cache[key] = _offline(preset, seq, data[:first_pass])
+            rep.offline_precision20, rep.offline_auc = cache[key]
         reports.append(rep)
 
     total_sent = sum(r.frames_sent for r in reports)
     total_results = sum(r.results for r in reports)
     metrics_delta = {k: after.get(k, 0.0) - before.get(k, 0.0) for k in after}
+    result_rate = total_results / elapsed if elapsed > 0 else 0.0
+    # throughput in the steady state: every stream started (plus a second), none finished yet
+    t_a = start_ns + int((stagger * (streams - 1) + 1.0) * 1e9)
+    t_b = min(ended_ns.values()) if ended_ns else 0
+    if t_b - t_a >= 2e9:
+        in_window = sum(1 for v in results.values() for _, rcv in v if t_a <= rcv <= t_b)
+        processed_rate = in_window / sessions_per_stream / ((t_b - t_a) / 1e9)
+    else:
+        processed_rate = result_rate / sessions_per_stream
+    cpus = cpu_use["cpus"]
+    single = reference["library_fps"]
     return {
         "streams": streams, "sessions_per_stream": sessions_per_stream, "preset": preset,
-        "fps": fps, "elapsed_s": elapsed,
+        "fps": fps, "loop": loop, "elapsed_s": elapsed,
+        "sequences": sorted({seq.name for _, seq, _ in plan}),
         "frames_sent": total_sent, "results": total_results,
         "dropped_by_service": sum(r.dropped_by_service for r in reports),
         "missing": sum(r.missing for r in reports),
         "latency_ms": _percentiles(all_lat),
-        "result_rate": total_results / elapsed if elapsed > 0 else 0.0,
-        # one library process on the same frames (decode + track), frame-weighted over streams
-        "library_fps": (sum(r.frames_sent for r in reports if np.isfinite(r.library_fps)) /
-                        sum(r.frames_sent / r.library_fps for r in reports
-                            if np.isfinite(r.library_fps) and r.library_fps > 0)
-                        if any(np.isfinite(r.library_fps) for r in reports) else float("nan")),
+        "result_rate": result_rate,
+        "processed_fps": processed_rate,
+        **reference,
+        # frames/s through the service per CPU, as a share of one library process; meaningful
+        # at saturation (offered load above what the service can track)
+        "efficiency": processed_rate / (single * cpus),
+        # the same, counting only the CPUs the load generator left to the service
+        "efficiency_net": processed_rate / (single * max(cpus - cpu_use["generator_cores"], 1e-9)),
+        # against library processes running side by side: the ceiling on this machine
+        "efficiency_parallel": processed_rate / reference["library_parallel_fps"],
+        "cpu": cpu_use,
+        "breakdown": time_breakdown(metrics_delta) if metrics_url else {},
         "metrics_delta": metrics_delta,
         "metrics_agree": (not metrics_url) or (
             metrics_delta.get("arcf_results_published_total", -1) == total_results),
@@ -240,18 +430,43 @@ def run_load(
     }
 
 
+def passes(report: dict[str, Any], p99_ms: float = 100.0) -> bool:
+    """The capacity criterion: every frame tracked, p99 end-to-end latency under the bound."""
+    return (report["dropped_by_service"] == 0 and report["missing"] == 0
+            and report["results"] > 0 and report["latency_ms"]["p99"] < p99_ms)
+
+
 def markdown(reports: list[dict[str, Any]]) -> str:
     lines = ["| streams | preset | fps/stream | frames sent | results | dropped | missing | "
-             "p50 / p95 / p99 / max latency (ms) | results/s | library alone, fps | "
-             "metrics agree |",
-             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+             "p50 / p95 / p99 / max latency (ms) | service fps | library fps: 1 / N processes "
+             "| service / (N x 1 process) (net of generator) | service / N processes | "
+             "CPU cores: generator / service / machine | metrics agree |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- "
+             "| --- |"]
     for r in reports:
-        lat = r["latency_ms"]
+        lat, cpu = r["latency_ms"], r.get("cpu", {})
         lines.append(
             f"| {r['streams']} | {r['preset']} | {r['fps']:g} | {r['frames_sent']} | "
             f"{r['results']} | {r['dropped_by_service']} | {r['missing']} | {lat['p50']:.0f} / "
-            f"{lat['p95']:.0f} / {lat['p99']:.0f} / {lat['max']:.0f} | {r['result_rate']:.1f} | "
-            f"{r['library_fps']:.1f} | {'yes' if r['metrics_agree'] else 'NO'} |")
+            f"{lat['p95']:.0f} / {lat['p99']:.0f} / {lat['max']:.0f} | "
+            f"{r['processed_fps']:.1f} | {r['library_fps']:.1f} / "
+            f"{r['library_parallel_fps']:.1f} (N={r['library_processes']}) | "
+            f"{100 * r['efficiency']:.0f} % ({100 * r['efficiency_net']:.0f} %) | "
+            f"{100 * r['efficiency_parallel']:.0f} % | "
+            f"{cpu.get('generator_cores', float('nan')):.2f} / "
+            f"{cpu.get('service_cores', float('nan')):.2f} / "
+            f"{cpu.get('machine_cores', float('nan')):.2f} | "
+            f"{'yes' if r['metrics_agree'] else 'NO'} |")
+    if any(r.get("breakdown") for r in reports):
+        lines += ["", "Where a frame's time goes, from the service's histograms (mean ms):", "",
+                  "| streams | decode | track (per session) | other: transport, queueing, "
+                  "messages | end to end (to publish) |",
+                  "| --- | --- | --- | --- | --- |"]
+        for r in reports:
+            b = r.get("breakdown") or {}
+            if b:
+                lines.append(f"| {r['streams']} | {b['decode_ms']:.1f} | {b['track_ms']:.1f} | "
+                             f"{b['other_ms']:.1f} | {b['end_to_end_ms']:.1f} |")
     lines += ["", "| stream | sequence | sent | results | dropped | "
               "P@20 / AUC through the service | offline |",
               "| --- | --- | --- | --- | --- | --- | --- |"]
@@ -299,18 +514,31 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--spawn-service", action="store_true",
                     help="start an arcf-service on a free loopback port for the run")
     ap.add_argument("--metrics-url", help="the service's /metrics URL (scraped before/after)")
+    ap.add_argument("--service-pid", type=int,
+                    help="pid of the service's main process, to measure its CPU use")
     ap.add_argument("--dataset", default="uav123_10fps")
     ap.add_argument("--sequences", default="", help="comma-separated (default: all local)")
     ap.add_argument("--streams", type=int, default=2)
     ap.add_argument("--sweep", default="", help="e.g. 1,2,4,8: one run per stream count")
+    ap.add_argument("--capacity", action="store_true",
+                    help="add streams one at a time until the criterion fails; report the "
+                         "largest count that passed")
+    ap.add_argument("--max-streams", type=int, default=16, help="bound for --capacity")
+    ap.add_argument("--p99-ms", type=float, default=100.0,
+                    help="capacity criterion: p99 end-to-end latency bound (and no drops)")
     ap.add_argument("--sessions-per-stream", type=int, default=1)
     ap.add_argument("--preset", default="arcf-h")
     ap.add_argument("--fps", type=float, default=10.0, help="per stream; 0 = as fast as possible")
     ap.add_argument("--duration", type=float, default=20.0, help="seconds per run (bound)")
     ap.add_argument("--frames", type=int, default=0, help="frames per stream (bound)")
+    ap.add_argument("--loop", action="store_true",
+                    help="replay sequences again when they end (until --duration/--frames)")
     ap.add_argument("--stagger", type=float, default=0.2, help="seconds between stream starts")
     ap.add_argument("--out", default="loadtest", help="report basename (.json, .md, .png)")
-    ap.add_argument("--no-offline", action="store_true", help="skip the offline comparison")
+    ap.add_argument("--no-offline", action="store_true",
+                    help="skip the offline accuracy comparison")
+    ap.add_argument("--reference-seconds", type=float, default=10.0,
+                    help="how long to measure the library's own throughput (0: skip)")
     args = ap.parse_args(argv)
 
     from arcf.eval import load_dataset
@@ -318,12 +546,16 @@ def main(argv: list[str] | None = None) -> int:
     seqs = load_dataset(args.dataset)
     if args.sequences:
         wanted = args.sequences.split(",")
-        seqs = [s for s in seqs if s.name in wanted]
+        seqs = sorted((s for s in seqs if s.name in wanted), key=lambda s: wanted.index(s.name))
     if not seqs:
         raise SystemExit("arcf-loadtest: no sequences")
-    levels = [int(x) for x in args.sweep.split(",") if x] or [args.streams]
+    if args.capacity:
+        levels = list(range(1, args.max_streams + 1))
+    else:
+        levels = [int(x) for x in args.sweep.split(",") if x] or [args.streams]
     proc = None
     connect, metrics_url = args.connect or ["tcp/127.0.0.1:7447"], args.metrics_url
+    service_pid = args.service_pid
     if args.spawn_service:
         import socket
 
@@ -337,14 +569,23 @@ def main(argv: list[str] | None = None) -> int:
         metrics_url = f"http://127.0.0.1:{mport}/metrics"
         proc = subprocess.Popen([sys.executable, "-m", "service.app", "--listen", connect[0],
                                  "--metrics-port", str(mport)], stdout=subprocess.PIPE, text=True)
+        service_pid = proc.pid
         assert proc.stdout is not None
         print(proc.stdout.readline().strip(), file=sys.stderr)
+    reports: list[dict[str, Any]] = []
+    cache: dict[Any, Any] = {}
     try:
-        reports = [run_load(connect, seqs, streams=n, sessions_per_stream=args.sessions_per_stream,
-                            preset=args.preset, fps=args.fps, duration=args.duration,
-                            max_frames=args.frames, stagger=args.stagger,
-                            metrics_url=metrics_url, offline=not args.no_offline)
-                   for n in levels]
+        for n in levels:
+            report = run_load(connect, seqs, streams=n,
+                              sessions_per_stream=args.sessions_per_stream, preset=args.preset,
+                              fps=args.fps, duration=args.duration, max_frames=args.frames,
+                              stagger=args.stagger, loop=args.loop, metrics_url=metrics_url,
+                              service_pid=service_pid, offline=not args.no_offline,
+                              reference_seconds=args.reference_seconds, cache=cache)
+            report["passes"] = passes(report, args.p99_ms)
+            reports.append(report)
+            if args.capacity and not report["passes"]:
+                break
     finally:
         if proc is not None:
             proc.terminate()
@@ -353,6 +594,10 @@ def main(argv: list[str] | None = None) -> int:
     out.parent.mkdir(parents=True, exist_ok=True)
     out.with_suffix(".json").write_text(json.dumps(reports, indent=1, default=float) + "\n")
     md = markdown(reports)
+    if args.capacity:
+        ok = [r["streams"] for r in reports if r["passes"]]
+        md = (f"Capacity ({args.preset}, {args.fps:g} fps per stream, p99 < {args.p99_ms:g} ms, "
+              f"no drops): {max(ok) if ok else 0} streams\n\n" + md)
     out.with_suffix(".md").write_text(md)
     if len(reports) > 1:
         plot_sweep(reports, out.with_suffix(".png"))

@@ -1,16 +1,19 @@
 """A worker process: owns some streams, decodes each frame once, runs every session's tracker.
 
-Frames arrive through a ``RingChannel`` per stream (the newest ``frame_queue`` frames; older ones
-are dropped by Zenoh's side without ever blocking the network) and are taken by this process's
-own loop, never inside a Zenoh callback. Commands (start, reinit, stop) come from the control
-plane over a multiprocessing queue.
+Frames arrive in an inbox per stream that keeps the newest ``frame_queue`` frames (older ones
+are dropped, so the network is never blocked; the gap shows in the frame numbers and is counted).
+Zenoh's callback only copies the payload into the inbox and wakes the loop; decoding and tracking
+run on this process's own loop, never inside a callback. Commands (start, reinit, stop) come
+from the control plane over a multiprocessing queue, pumped into the same wake-up. An idle worker
+sleeps on that wake-up instead of polling, so it costs no CPU.
 """
 
 from __future__ import annotations
 
 import logging
-import queue
+import threading
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -37,10 +40,32 @@ class _Session:
     frames: int = 0
 
 
+class _Inbox:
+    """The newest frames of one stream: filled by Zenoh's callback thread, drained by the loop.
+
+    ``deque.append``/``popleft`` are atomic, and a full deque drops its oldest entry, which is
+    the drop-oldest policy a live video stream wants."""
+
+    def __init__(self, maxlen: int, wake: threading.Event) -> None:
+        self.frames: deque[tuple[bytes, int]] = deque(maxlen=maxlen)
+        self.wake = wake
+
+    def __call__(self, sample: Any) -> None:
+        self.frames.append((sample.payload.to_bytes(), time.time_ns()))
+        self.wake.set()
+
+    def pop(self) -> tuple[bytes, int] | None:
+        try:
+            return self.frames.popleft()
+        except IndexError:
+            return None
+
+
 @dataclass
 class _Stream:
     stream_id: str
     subscriber: Any
+    inbox: _Inbox
     errors: Any
     sessions: dict[str, _Session] = field(default_factory=dict)
     last_seq: int | None = None
@@ -106,6 +131,20 @@ class Worker:
         self.streams: dict[str, _Stream] = {}
         self.sessions: dict[str, _Session] = {}
         self.busy = metrics.BUSY.labels(worker=str(index))
+        self.wake = threading.Event()
+        self.pending: deque[dict[str, Any]] = deque()
+        threading.Thread(target=self._pump_commands, daemon=True,
+                         name=f"worker-{index}-commands").start()
+
+    def _pump_commands(self) -> None:
+        """Move commands from the control plane's queue into the loop's wake-up."""
+        while True:
+            try:
+                cmd = self.commands.get()
+            except (EOFError, OSError):  # the launcher is gone
+                return
+            self.pending.append(cmd)
+            self.wake.set()
 
     # ------------------------------------------------------------------ commands
     def _apply(self, cmd: dict[str, Any]) -> None:
@@ -135,12 +174,11 @@ class Worker:
         stream_id = cmd["stream_id"]
         stream = self.streams.get(stream_id)
         if stream is None:
-            sub = self.session.declare_subscriber(
-                self.keys.frames(stream_id),
-                self.zenoh.handlers.RingChannel(self.settings.frame_queue))
+            inbox = _Inbox(self.settings.frame_queue, self.wake)
+            sub = self.session.declare_subscriber(self.keys.frames(stream_id), inbox)
             errors = self.session.declare_publisher(
                 self.keys.errors(stream_id), congestion_control=self.zenoh.CongestionControl.DROP)
-            stream = self.streams[stream_id] = _Stream(stream_id, sub, errors)
+            stream = self.streams[stream_id] = _Stream(stream_id, sub, inbox, errors)
             self.metrics.STREAMS.inc()
         pub = self.session.declare_publisher(
             self.keys.results(stream_id, cmd["session_id"]),
@@ -245,27 +283,27 @@ class Worker:
     def run(self) -> None:
         busy_s, t_window = 0.0, time.monotonic()
         while not self.stop.is_set():
-            while True:
-                try:
-                    self._apply(self.commands.get_nowait())
-                except queue.Empty:
-                    break
-            worked = False
-            for stream in list(self.streams.values()):
-                sample = stream.subscriber.try_recv()
-                if sample is None:
-                    continue
-                worked = True
-                t0 = time.perf_counter()
-                try:
-                    self._process(stream, sample.payload.to_bytes(), time.time_ns())
-                except Exception:  # a bug must not take the worker (and its streams) down
-                    log.exception("worker %d: unexpected error on stream %s", self.index,
-                                  stream.stream_id)
-                    self.metrics.ERRORS.labels(kind="internal").inc()
-                busy_s += time.perf_counter() - t0
-            if not worked:
-                time.sleep(0.0005)
+            # cleared before draining: anything arriving from now on wakes the next round
+            self.wake.wait(timeout=0.5)
+            self.wake.clear()
+            worked = True
+            while worked:  # one frame per stream per round, commands in between: fair shares
+                while self.pending:
+                    self._apply(self.pending.popleft())
+                worked = False
+                for stream in list(self.streams.values()):
+                    item = stream.inbox.pop()
+                    if item is None:
+                        continue
+                    worked = True
+                    t0 = time.perf_counter()
+                    try:
+                        self._process(stream, *item)
+                    except Exception:  # a bug must not take the worker (and its streams) down
+                        log.exception("worker %d: unexpected error on stream %s", self.index,
+                                      stream.stream_id)
+                        self.metrics.ERRORS.labels(kind="internal").inc()
+                    busy_s += time.perf_counter() - t0
             now = time.monotonic()
             if now - t_window >= 1.0:
                 self.busy.set(busy_s / (now - t_window))
