@@ -223,6 +223,7 @@ def run_load(
     max_frames: int = 0,
     stagger: float = 0.2,
     loop: bool = False,
+    in_flight: int = 0,
     metrics_url: str | None = None,
     service_pid: int | None = None,
     prefix: str = "arcf/v1",
@@ -236,11 +237,14 @@ def run_load(
 
     With ``loop`` a stream replays its sequence again from the start when it runs out (the
     sessions are re-initialised on the ground truth's first box at each wrap), so a run can last
-    longer than the sequence; accuracy is scored on the first pass.
+    longer than the sequence; accuracy is scored on the first pass. With ``in_flight`` > 0 each
+    stream is a closed loop: frame i is sent once frame i - in_flight has all its results (or
+    after 2 s), so several such streams per worker keep every worker busy without a single drop,
+    which is how the service's saturation throughput is measured.
 
-    Before the load, the library's own throughput on the same frames is measured for
-    ``reference_seconds`` (0 skips it): one process, and ``reference_processes`` side by side
-    (default: one per CPU, like the service's workers). ``cache`` keeps those and the offline
+    The library's own throughput on the same frames is measured for ``reference_seconds`` (0
+    skips it), half before the load and half after: one process, and ``reference_processes``
+    side by side (default: one per CPU, like the service's workers). ``cache`` keeps the offline
     accuracy runs across the levels of a sweep.
     """
     from arcf.eval import score_sequence
@@ -250,7 +254,8 @@ def run_load(
     before = scrape(metrics_url)
     results: dict[str, list[tuple[Any, int]]] = {}
     sent: dict[str, int] = {}
-    lock = threading.Lock()
+    lock = threading.Condition()
+    answered: dict[str, dict[int, int]] = {}  # stream -> frame -> results so far
     plan = []
     for k in range(streams):
         seq = sequences[k % len(sequences)]
@@ -259,18 +264,26 @@ def run_load(
     cache = cache if cache is not None else {}
     workers = reference_processes or os.cpu_count() or 1
     reference = {"library_fps": float("nan"), "library_parallel_fps": float("nan"),
-                 "library_processes": workers}
+                 "library_processes": workers, "library_fps_runs": [],
+                 "library_parallel_fps_runs": []}
+    items, seen = [], set()
+    for _, seq, data in plan:
+        if seq.name not in seen:
+            seen.add(seq.name)
+            items.append((tuple(seq.init_box), data))
+
+    def measure_reference() -> None:
+        """Half the reference time before the load and half after, so that the drift of a
+        shared machine during the run weighs on both sides of the comparison alike."""
+        half = reference_seconds / 2
+        reference["library_fps_runs"].append(library_throughput(preset, items, 1, half))
+        reference["library_parallel_fps_runs"].append(
+            library_throughput(preset, items, workers, half))
+        reference["library_fps"] = float(np.mean(reference["library_fps_runs"]))
+        reference["library_parallel_fps"] = float(np.mean(reference["library_parallel_fps_runs"]))
+
     if reference_seconds > 0:
-        items, seen = [], set()
-        for _, seq, data in plan:
-            if seq.name not in seen:
-                seen.add(seq.name)
-                items.append((tuple(seq.init_box), data))
-        key = ("reference", preset, tuple(sorted(seen)), workers, reference_seconds)
-        if key not in cache:
-            cache[key] = (library_throughput(preset, items, 1, reference_seconds),
-                          library_throughput(preset, items, workers, reference_seconds))
-        reference["library_fps"], reference["library_parallel_fps"] = cache[key]
+        measure_reference()
 
     with TrackingClient(connect=connect, prefix=prefix) as client:
         subs, acks = [], {}
@@ -278,9 +291,13 @@ def run_load(
             results[name] = []
             sent[name] = 0
 
+            answered[name] = {}
+
             def on_result(r: Any, name: str = name) -> None:
                 with lock:
                     results[name].append((r, time.time_ns()))
+                    answered[name][r.frame_seq] = answered[name].get(r.frame_seq, 0) + 1
+                    lock.notify_all()
 
             subs.append(client.results(name, callback=on_result))
             acks[name] = [client.start(name, seq.init_box, preset=preset, frame_seq=0)
@@ -298,6 +315,11 @@ def run_load(
                 if i and i % len(data) == 0:  # a new pass: start over from the first box
                     for ack in acks[name]:
                         client.reinit(ack.session_id, seq.init_box, frame_seq=i)
+                if in_flight and i >= in_flight:  # closed loop: wait for frame i - in_flight
+                    wanted = i - in_flight
+                    with lock:
+                        lock.wait_for(lambda w=wanted: answered[name].get(w, 0)
+                                      >= sessions_per_stream, timeout=2.0)
                 client.publish_frame(name, data=data[i % len(data)], seq=i)
                 sent[name] = i = i + 1
                 if fps > 0:
@@ -343,6 +365,8 @@ def run_load(
             print(file=sys.stderr)
     time.sleep(0.5)
     after = scrape(metrics_url)
+    if reference_seconds > 0:
+        measure_reference()
 
     reports, all_lat = [], []
     for name, seq, data in plan:
@@ -533,6 +557,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--frames", type=int, default=0, help="frames per stream (bound)")
     ap.add_argument("--loop", action="store_true",
                     help="replay sequences again when they end (until --duration/--frames)")
+    ap.add_argument("--in-flight", type=int, default=0,
+                    help="closed loop: at most this many unanswered frames per stream "
+                         "(with --fps 0: saturation without drops)")
     ap.add_argument("--stagger", type=float, default=0.2, help="seconds between stream starts")
     ap.add_argument("--out", default="loadtest", help="report basename (.json, .md, .png)")
     ap.add_argument("--no-offline", action="store_true",
@@ -579,7 +606,8 @@ def main(argv: list[str] | None = None) -> int:
             report = run_load(connect, seqs, streams=n,
                               sessions_per_stream=args.sessions_per_stream, preset=args.preset,
                               fps=args.fps, duration=args.duration, max_frames=args.frames,
-                              stagger=args.stagger, loop=args.loop, metrics_url=metrics_url,
+                              stagger=args.stagger, loop=args.loop, in_flight=args.in_flight,
+                              metrics_url=metrics_url,
                               service_pid=service_pid, offline=not args.no_offline,
                               reference_seconds=args.reference_seconds, cache=cache)
             report["passes"] = passes(report, args.p99_ms)
