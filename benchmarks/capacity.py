@@ -1,0 +1,205 @@
+"""Capacity of one arcf-service on this machine: how many real-time 1280x720 streams it sustains,
+and its throughput at saturation next to the library's own.
+
+Two parts, one spawned service (one worker per CPU) for all of it:
+
+1. **Capacity**: for each preset, frame rate and sequence, streams are added one at a time (all
+   replaying that sequence, looped, paced at the frame rate) until the criterion fails: p99
+   end-to-end latency under 100 ms and not a single frame dropped or missing. The capacity is
+   the last stream count that passed. Per sequence, because the cost of a frame depends on the
+   target's size far more than on the image's.
+2. **Saturation**: closed-loop streams (one frame in flight each, two per worker) keep every
+   worker busy without a drop, and the service's frames per second are set against the library
+   decoding and tracking the same frames, in one process and in one process per CPU, measured
+   just before and after (the service's efficiency). The service's histograms give the time
+   breakdown (decode, track, the rest) and /proc the CPU use of generator and service.
+
+    python benchmarks/capacity.py                      # everything, ~40 min on 2 cores
+    python benchmarks/capacity.py --presets arcf-hc --fps 10 --sequences wakeboard7
+
+Writes ``capacity.json`` and prints Markdown tables (for docs/benchmarks.md).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from service.loadtest import passes, run_load  # noqa: E402
+
+
+def cpu_model() -> str:
+    for line in Path("/proc/cpuinfo").read_text().splitlines():
+        if line.startswith("model name"):
+            return line.split(":", 1)[1].strip()
+    return platform.processor()
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def image_size(seq: Any) -> list[int]:
+    import cv2
+
+    h, w = cv2.imread(str(seq.frames[0]), cv2.IMREAD_UNCHANGED).shape[:2]
+    return [w, h]
+
+
+def spawn_service() -> tuple[subprocess.Popen[str], str, str]:
+    port, mport = free_port(), free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    proc = subprocess.Popen([sys.executable, "-m", "service.app", "--listen", endpoint,
+                             "--metrics-port", str(mport)], stdout=subprocess.PIPE, text=True,
+                            cwd=ROOT)
+    assert proc.stdout is not None
+    line = proc.stdout.readline()
+    if "ready" not in line:
+        proc.kill()
+        raise SystemExit(f"service did not start: {line!r}")
+    return proc, endpoint, f"http://127.0.0.1:{mport}/metrics"
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--presets", default="arcf-h,arcf-hc")
+    ap.add_argument("--fps", default="10,30")
+    ap.add_argument("--dataset", default="uav123_10fps")
+    ap.add_argument("--sequences", default="", help="comma-separated (default: all local)")
+    ap.add_argument("--duration", type=float, default=15.0, help="seconds per load level")
+    ap.add_argument("--max-streams", type=int, default=10)
+    ap.add_argument("--p99-ms", type=float, default=100.0)
+    ap.add_argument("--saturation-sequences", default="wakeboard7,boat1")
+    ap.add_argument("--saturation-seconds", type=float, default=30.0)
+    ap.add_argument("--reference-seconds", type=float, default=20.0)
+    ap.add_argument("--skip-capacity", action="store_true")
+    ap.add_argument("--skip-saturation", action="store_true")
+    ap.add_argument("--out", default="capacity.json")
+    args = ap.parse_args()
+
+    from arcf.eval import load_dataset
+
+    seqs = load_dataset(args.dataset)
+    if args.sequences:
+        seqs = [s for s in seqs if s.name in args.sequences.split(",")]
+    presets = args.presets.split(",")
+    rates = [float(x) for x in args.fps.split(",")]
+    ncpu = os.cpu_count() or 1
+    proc, endpoint, metrics_url = spawn_service()
+    out: dict[str, Any] = {"machine": {"nproc": ncpu, "cpu": cpu_model()},
+                           "capacity": [], "saturation": []}
+    t_start = time.monotonic()
+    try:
+        if not args.skip_capacity:
+            for preset in presets:
+                for fps in rates:
+                    for seq in seqs:
+                        levels = []
+                        for n in range(1, args.max_streams + 1):
+                            r = run_load([endpoint], [seq], streams=n, preset=preset, fps=fps,
+                                         duration=args.duration, loop=True,
+                                         metrics_url=metrics_url, service_pid=proc.pid,
+                                         offline=False, reference_seconds=0, progress=False)
+                            r["passes"] = passes(r, args.p99_ms)
+                            r.pop("per_stream")
+                            levels.append(r)
+                            print(f"{preset} {fps:g} fps {seq.name}: {n} streams, "
+                                  f"p99 {r['latency_ms']['p99']:.0f} ms, "
+                                  f"dropped {r['dropped_by_service']}, "
+                                  f"{'pass' if r['passes'] else 'FAIL'}", file=sys.stderr)
+                            if not r["passes"]:
+                                break
+                        ok = [r["streams"] for r in levels if r["passes"]]
+                        out["capacity"].append({"preset": preset, "fps": fps,
+                                                "sequence": seq.name,
+                                                "size": image_size(seq),
+                                                "capacity": max(ok) if ok else 0,
+                                                "levels": levels})
+                        Path(args.out).write_text(json.dumps(out, indent=1, default=float))
+        if not args.skip_saturation:
+            sat = [s for s in seqs if s.name in args.saturation_sequences.split(",")]
+            for preset in presets:
+                for seq in sat:
+                    r = run_load([endpoint], [seq], streams=2 * ncpu, preset=preset, fps=0,
+                                 in_flight=1, duration=args.saturation_seconds, loop=True,
+                                 metrics_url=metrics_url, service_pid=proc.pid, offline=False,
+                                 reference_seconds=args.reference_seconds, progress=False)
+                    r.pop("per_stream")
+                    out["saturation"].append(r)
+                    print(f"{preset} saturation {seq.name}: {r['processed_fps']:.1f} fps, "
+                          f"library {r['library_fps']:.1f} x {ncpu}", file=sys.stderr)
+                    Path(args.out).write_text(json.dumps(out, indent=1, default=float))
+    finally:
+        proc.terminate()
+        proc.wait(timeout=30)
+    out["minutes"] = (time.monotonic() - t_start) / 60
+    Path(args.out).write_text(json.dumps(out, indent=1, default=float))
+    print(markdown(out))
+    return 0
+
+
+def markdown(out: dict[str, Any]) -> str:
+    m = out["machine"]
+    lines = [f"Machine: nproc {m['nproc']}, {m['cpu']}.", ""]
+    if out["capacity"]:
+        rates = sorted({c["fps"] for c in out["capacity"]})
+        presets = list(dict.fromkeys(c["preset"] for c in out["capacity"]))
+        seqs = list(dict.fromkeys(c["sequence"] for c in out["capacity"]))
+        head = " | ".join(f"{p}, {f:g} fps" for p in presets for f in rates)
+        lines += [f"| sequence | {head} |", "| --- |" + " --- |" * (len(presets) * len(rates))]
+        by = {(c["preset"], c["fps"], c["sequence"]): c for c in out["capacity"]}
+        for s in seqs:
+            cells = []
+            for p in presets:
+                for f in rates:
+                    c = by.get((p, f, s))
+                    if c is None:
+                        cells.append("")
+                        continue
+                    best = next((r for r in c["levels"] if r["streams"] == c["capacity"]), None)
+                    p99 = f" (p99 {best['latency_ms']['p99']:.0f} ms)" if best else ""
+                    cells.append(f"{c['capacity']}{p99}")
+            lines.append(f"| {s} | " + " | ".join(cells) + " |")
+        lines += ["", "| preset | fps | sequence | streams | dropped | p50 / p99 (ms) | "
+                  "generator / service CPU (cores) | pass |",
+                  "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+        for c in out["capacity"]:
+            for r in c["levels"]:
+                lat, cpu = r["latency_ms"], r["cpu"]
+                lines.append(f"| {c['preset']} | {c['fps']:g} | {c['sequence']} | {r['streams']} "
+                             f"| {r['dropped_by_service']} | {lat['p50']:.0f} / {lat['p99']:.0f} "
+                             f"| {cpu['generator_cores']:.2f} / {cpu.get('service_cores', 0):.2f} "
+                             f"| {'yes' if r['passes'] else 'no'} |")
+    if out["saturation"]:
+        lines += ["", "| preset | sequence | service fps | library fps, 1 process (runs) | "
+                  "library fps, N processes | service / (N x 1 process) | net of generator | "
+                  "service / N processes | decode / track / other (ms) | CPU: generator / "
+                  "service |", "| --- " * 10 + "|"]
+        for r in out["saturation"]:
+            b, cpu = r["breakdown"], r["cpu"]
+            runs = ", ".join(f"{x:.1f}" for x in r["library_fps_runs"])
+            lines.append(
+                f"| {r['preset']} | {r['sequences'][0]} | {r['processed_fps']:.1f} | "
+                f"{r['library_fps']:.1f} ({runs}) | {r['library_parallel_fps']:.1f} "
+                f"(N={r['library_processes']}) | {100 * r['efficiency']:.0f} % | "
+                f"{100 * r['efficiency_net']:.0f} % | {100 * r['efficiency_parallel']:.0f} % | "
+                f"{b['decode_ms']:.1f} / {b['track_ms']:.1f} / {b['other_ms']:.1f} | "
+                f"{cpu['generator_cores']:.2f} / {cpu.get('service_cores', 0):.2f} |")
+    return "\n".join(lines) + "\n"
+
+
+if __name__ == "__main__":
+    sys.exit(main())
