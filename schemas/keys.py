@@ -100,6 +100,20 @@ KEY_ROUTES: tuple[KeyRoute, ...] = (
         "one per live worker process (no payload)",
         (),
     ),
+    KeyRoute(
+        "instances",
+        "<prefix>/instances/<instance>",
+        "service liveliness tokens",
+        "one per live service instance (no payload); the live set decides stream ownership",
+        (),
+    ),
+    KeyRoute(
+        "registry",
+        "<prefix>/registry/<session>",
+        "service puts/deletes; every instance also answers queries on <prefix>/registry/*",
+        "the spec of every running session, so that a surviving instance can resume it",
+        ("session_spec",),
+    ),
 )
 
 
@@ -176,6 +190,22 @@ class KeySpace:
     def all_workers(self) -> str:
         """``<prefix>/workers/*/*``: every worker token of every instance."""
         return f"{self.prefix}/workers/*/*"
+
+    def instance_token(self, instance: str) -> str:
+        """``<prefix>/instances/<instance>``: a service instance's liveliness token."""
+        return f"{self.prefix}/instances/{check_id(instance, 'instance id')}"
+
+    def all_instances(self) -> str:
+        """``<prefix>/instances/*``: the tokens of every live service instance."""
+        return f"{self.prefix}/instances/*"
+
+    def registry(self, session: str) -> str:
+        """``<prefix>/registry/<session>``: a running session's spec."""
+        return f"{self.prefix}/registry/{check_id(session, 'session id')}"
+
+    def registry_all(self) -> str:
+        """``<prefix>/registry/*``: every running session's spec."""
+        return f"{self.prefix}/registry/*"
 
     # -- parsers -------------------------------------------------------------------------------
 

@@ -61,6 +61,7 @@ __all__ = [
     "ResultBox",
     "ResultStatus",
     "SessionInfo",
+    "SessionSpec",
     "StartRequest",
     "Status",
     "StatusRequest",
@@ -147,6 +148,9 @@ class ResultStatus(str, Enum):
     INITIALIZED = "initialized"
     TRACKING = "tracking"
     REINITIALIZED = "reinitialized"
+    #: Taken over by another worker or instance after a failure or a rebalance, and started
+    #: again from the last published box.
+    RESUMED = "resumed"
     ERROR = "error"
 
 
@@ -491,8 +495,30 @@ class SessionInfo(WireModel):
     frames: NonNegInt = Field(description="Frames processed by this session so far.")
 
 
+class SessionSpec(Message):
+    """What a session is, as the instances replicate it on ``<prefix>/registry/<session>``.
+
+    Enough to start the session again elsewhere: when its instance dies, the new owner of the
+    stream resumes it from ``last_box`` on the frame after ``last_seq`` (the instances follow
+    every result); without a published result yet, from ``box`` on ``frame_seq``.
+    """
+
+    type: ClassVar[str] = "session_spec"
+
+    session_id: Id
+    stream_id: Id
+    preset: Id
+    overrides: dict[OverrideKey, OverrideValue] = Field(default_factory=dict,
+                                                        max_length=MAX_OVERRIDES)
+    box: Box
+    frame_seq: NonNegInt | None = None
+    last_seq: NonNegInt | None = Field(default=None, description="Frame of the last result.")
+    last_box: Box | None = Field(default=None, description="Box of the last result.")
+
+
 class Status(Message):
-    """Reply to ``status_request``: what this service instance runs."""
+    """Reply to ``status_request``: what the service runs (every instance, when several share
+    the streams; ``instance_id`` is the one that answered)."""
 
     type: ClassVar[str] = "status"
 
@@ -503,6 +529,8 @@ class Status(Message):
     streams: list[Id] = Field(description="Streams with at least one session.")
     sessions: list[SessionInfo]
     uptime_s: NonNegFiniteFloat
+    instances: list[Id] = Field(default_factory=list,
+                                description="Live service instances sharing the streams.")
 
 
 #: Every top-level message model by wire type, in the order of the design document.
@@ -518,5 +546,6 @@ MESSAGE_TYPES: dict[str, type[Message]] = {
         ErrorMessage,
         Result,
         Status,
+        SessionSpec,
     )
 }

@@ -42,12 +42,14 @@ class Service:
         from schemas import ErrorMessage, KeySpace, encode
 
         from . import metrics
+        from .cluster import Cluster
         from .control import ControlPlane
         from .transport import open_session
         from .worker import worker_main
 
         self.keys = KeySpace(s.prefix)
-        self.session = open_session(s.mode, listen=s.listen, connect=s.connect,
+        self.session = open_session(s.mode, listen=s.listen if s.mode != "client" else (),
+                                    connect=s.connect,
                                     config_file=s.zenoh_config, lease_ms=s.lease_ms)
         self.http = None
         if s.metrics_port >= 0:
@@ -63,7 +65,11 @@ class Service:
                                   name=f"arcf-worker-{k}") for k in range(s.workers)]
         for p in self.procs:
             p.start()
-        self.control = ControlPlane(s, self.queues, __version__, responses=self.responses)
+        self.cluster = Cluster(self.session, self.keys, s.instance_id)
+        self.control = ControlPlane(s, self.queues, __version__, responses=self.responses,
+                                    cluster=self.cluster)
+        self.cluster.on_change = self.control.rebalance
+        self.cluster.start()  # the others' sessions are known before this instance joins
         self.queryable = self.session.declare_queryable(self.keys.control(),
                                                         self.control.handle_query)
         # Frames of streams nobody tracks: counted, and answered with a rate-limited error.
@@ -89,13 +95,17 @@ class Service:
                 pub.put(encode(ErrorMessage(code="no_session", stream_id=stream,
                                             message=f"no tracking session on stream {stream!r}")))
 
-        self.watcher = self.session.declare_subscriber(self.keys.all_frames(), untracked)
+        # Only for the embedded router: in a multi-instance deployment every instance would
+        # receive every frame just to count the untracked ones.
+        self.watcher = (self.session.declare_subscriber(self.keys.all_frames(), untracked)
+                        if s.mode == "router" else None)
         self._wait_for_workers()
+        self.cluster.join()  # now others may hand streams to us, and we take ours
         return self
 
     def _wait_for_workers(self, timeout: float = 30.0) -> None:
         deadline = time.monotonic() + timeout
-        key = self.keys.all_workers()
+        key = self.keys.workers_of_instance(self.settings.instance_id)
         while time.monotonic() < deadline:
             alive = [r for r in self.session.liveliness().get(key, timeout=1.0) if r.ok]
             if len(alive) >= self.settings.workers:
@@ -148,6 +158,9 @@ class Service:
     def close(self) -> None:
         from . import metrics
 
+        # leave the cluster first: the survivors take this instance's streams over while its
+        # workers wind down (the registry entries stay, so the sessions resume there)
+        self.cluster.close()
         self.worker_stop.set()
         for p in self.procs:
             p.join(timeout=5)
@@ -160,7 +173,8 @@ class Service:
         for q in [*self.queues, self.responses]:
             q.close()
             q.join_thread()
-        self.watcher.undeclare()
+        if self.watcher is not None:
+            self.watcher.undeclare()
         self.queryable.undeclare()
         self.session.close()
         if self.http is not None:
@@ -180,6 +194,7 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--metrics-port", type=int, help="Prometheus port (0: any, -1: off)")
     ap.add_argument("--metrics-host")
     ap.add_argument("--lease-ms", type=int, help="Zenoh lease: how fast a hung peer is noticed")
+    ap.add_argument("--instance-id", help="this instance's id among several (default: random)")
     ap.add_argument("--version", action="version", version=f"arcf-service {__version__}")
     return ap
 
@@ -194,7 +209,7 @@ def main(argv: list[str] | None = None) -> int:
             zenoh_config=args.zenoh_config, workers=args.workers, prefix=args.prefix,
             frame_queue=args.frame_queue, max_payload=args.max_payload,
             metrics_port=args.metrics_port, metrics_host=args.metrics_host,
-            lease_ms=args.lease_ms)
+            lease_ms=args.lease_ms, instance_id=args.instance_id)
     except ValueError as exc:
         raise SystemExit(f"arcf-service: {exc}") from exc
     service = Service(settings)

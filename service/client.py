@@ -155,8 +155,10 @@ class TrackingClient:
 
     # ------------------------------------------------------------------ control
     def _request(self, request: Any, timeout: float) -> Any:
+        # target ALL: with several instances, each sees the request and the one that owns it
+        # answers (see service.control)
         replies = list(self.session.get(self.keys.control(), payload=encode(request),
-                                        timeout=timeout))
+                                        timeout=timeout, target=zenoh.QueryTarget.ALL))
         for reply in replies:
             if reply.ok is None:
                 continue

@@ -3,11 +3,18 @@
 It runs in the main process. Its query callback does only cheap work: decode, validate
 (``arcf.make_params`` rejects unknown presets and bad overrides up front), choose the owning
 worker and enqueue the command. Tracking never happens here.
+
+With several instances on one Zenoh network, every instance receives every request (clients
+query with target ALL) and exactly one answers: the owner of the request's stream (see
+:mod:`service.cluster`), or, for a request about nothing known (an unknown session, a status
+request, a malformed message), the owner of the request itself. All instances agree on who
+that is without talking, so a client may reach the service through any of them.
 """
 
 from __future__ import annotations
 
 import hashlib
+import logging
 import threading
 import time
 import uuid
@@ -18,14 +25,11 @@ from typing import Any
 from arcf import ARCFError, make_params
 from arcf.presets import PRESETS
 
+from .cluster import Cluster, owner, weight
 
-def owner(stream_id: str, workers: Sequence[int]) -> int:
-    """Rendezvous (highest-random-weight) hashing: the worker that owns a stream.
+__all__ = ["ControlPlane", "SessionRecord", "owner", "place"]
 
-    Every process computes the same owner from the same worker set, and removing or adding a
-    worker moves only the streams it owned (the scale-out issue reuses this across instances).
-    """
-    return max(workers, key=lambda w: _weight(stream_id, w))
+log = logging.getLogger("arcf.service.control")
 
 
 def place(stream_id: str, streams_per_worker: Sequence[int]) -> int:
@@ -37,13 +41,8 @@ def place(stream_id: str, streams_per_worker: Sequence[int]) -> int:
     with :func:`owner`, which needs no shared state.
     """
     workers = range(len(streams_per_worker))
-    rank = {w: i for i, w in enumerate(sorted(workers, key=lambda w: -_weight(stream_id, w)))}
+    rank = {w: i for i, w in enumerate(sorted(workers, key=lambda w: -weight(stream_id, w)))}
     return min(workers, key=lambda w: (streams_per_worker[w], rank[w]))
-
-
-def _weight(stream_id: str, w: int) -> int:
-    return int.from_bytes(hashlib.blake2b(f"{stream_id}\x00{w}".encode(), digest_size=8).digest(),
-                          "big")
 
 
 @dataclass
@@ -57,8 +56,10 @@ class SessionRecord:
 
 class ControlPlane:
     def __init__(self, settings: Any, worker_queues: Sequence[Any], version: str,
-                 responses: Any = None, timeout: float = 10.0) -> None:
+                 responses: Any = None, timeout: float = 10.0,
+                 cluster: Cluster | None = None) -> None:
         self.settings = settings
+        self.cluster = cluster
         self.queues = worker_queues
         self.responses = responses
         self.timeout = timeout
@@ -114,17 +115,96 @@ class ControlPlane:
         return lost
 
     def tracked_streams(self) -> set[str]:
+        """Streams with a session anywhere (on any instance)."""
         with self.lock:
-            return {r.stream_id for r in self.sessions.values()}
+            local = {r.stream_id for r in self.sessions.values()}
+        if self.cluster is not None:
+            local |= {spec.stream_id for spec in self.cluster.all_specs()}
+        return local
+
+    # ------------------------------------------------------------------ ownership
+    def _mine(self, key: str) -> bool:
+        return self.cluster is None or self.cluster.mine(key)
+
+    def rebalance(self) -> None:
+        """Make this instance run exactly the sessions whose streams it owns: take over the
+        sessions of an instance that left (resuming from their last published box), hand over
+        those a newcomer now owns. Called by the cluster whenever membership or the registry
+        changed."""
+        from . import metrics
+
+        if self.cluster is None:
+            return
+        specs = {spec.session_id: spec for spec in self.cluster.all_specs()}
+        with self.lock:
+            local = dict(self.sessions)
+        for sid, spec in specs.items():
+            mine = self.cluster.mine(spec.stream_id)
+            if mine and sid not in local:
+                box, frame_seq, resumed = self.cluster.resume_point(sid)
+                try:
+                    w = self._admit(sid, spec.stream_id, spec.preset)
+                    self._forward(w, {"op": "start", "session_id": sid,
+                                      "stream_id": spec.stream_id, "box": list(box),
+                                      "preset": spec.preset, "overrides": dict(spec.overrides),
+                                      "frame_seq": frame_seq,
+                                      "status": "resumed" if resumed else "initialized"})
+                except _Refused as exc:
+                    with self.lock:
+                        self.sessions.pop(sid, None)
+                    log.error("could not take over session %s: %s", sid, exc.message)
+                    continue
+                metrics.TAKEOVERS.inc()
+                log.info("took over session %s of stream %s (from frame %s)", sid,
+                         spec.stream_id, frame_seq)
+            elif not mine and sid in local:
+                self._drop_local(sid)
+                metrics.HANDOVERS.inc()
+                log.info("handed over session %s of stream %s", sid, spec.stream_id)
+        for sid in set(local) - set(specs):  # withdrawn elsewhere: nothing to run any more
+            self._drop_local(sid)
+
+    def _drop_local(self, session_id: str) -> None:
+        with self.lock:
+            rec = self.sessions.pop(session_id, None)
+        if rec is not None:
+            try:
+                self._forward(rec.worker, {"op": "stop", "session_id": session_id})
+            except _Refused as exc:
+                log.error("could not stop session %s: %s", session_id, exc.message)
+
+    def _admit(self, sid: str, stream_id: str, preset: str) -> int:
+        """Record a local session and choose its worker: the stream's worker if it has one
+        (every session of a stream on one worker: the frame is decoded once), else the least
+        loaded."""
+        with self.lock:
+            if sid in self.sessions:
+                raise _Refused("invalid_request", f"session {sid!r} already exists")
+            n = sum(1 for r in self.sessions.values() if r.stream_id == stream_id)
+            if n >= self.settings.max_sessions_per_stream:
+                raise _Refused("invalid_request", f"stream {stream_id!r} already has {n} "
+                               "sessions (max_sessions_per_stream)")
+            same = [r.worker for r in self.sessions.values() if r.stream_id == stream_id]
+            if same:
+                w = same[0]
+            else:
+                load = [0] * len(self.queues)
+                for _stream, worker in {(r.stream_id, r.worker) for r in self.sessions.values()}:
+                    load[worker] += 1
+                w = place(stream_id, load)
+            self.sessions[sid] = SessionRecord(sid, stream_id, preset, w, time.time())
+        return w
 
     # ------------------------------------------------------------------ queries
     def handle_query(self, query: Any) -> None:
         """Zenoh queryable callback: exactly one reply per query, never an exception."""
         payload = query.payload.to_bytes() if query.payload is not None else b""
         reply = self.handle(payload)
-        query.reply(query.key_expr, reply)
+        if reply is not None:  # another instance answers this one
+            query.reply(query.key_expr, reply)
 
-    def handle(self, payload: bytes) -> bytes:
+    def handle(self, payload: bytes) -> bytes | None:
+        """The encoded reply to a request, or None when another instance owns the answer."""
         from schemas import (
             ErrorMessage,
             ReinitRequest,
@@ -142,9 +222,13 @@ class ControlPlane:
             request = decode(payload, expected=(StartRequest, ReinitRequest, StopRequest,
                                                 StatusRequest))
         except SchemaError as exc:
+            if not self._mine("payload:" + hashlib.blake2b(payload, digest_size=8).hexdigest()):
+                return None
             metrics.CONTROL.labels(type="invalid", outcome=exc.code.value).inc()
             return encode(ErrorMessage(code=exc.code.value, message=str(exc)))
         kind = type(request).__name__
+        if not self._mine(self._responder_key(request)):
+            return None
         try:
             if isinstance(request, StartRequest):
                 reply = self._start(request)
@@ -163,8 +247,23 @@ class ControlPlane:
         metrics.CONTROL.labels(type=kind, outcome="ok").inc()
         return encode(reply)
 
+    def _responder_key(self, request: Any) -> str:
+        """What decides which instance answers: the stream, when the request names one or its
+        session is known; else the request itself."""
+        stream = getattr(request, "stream_id", None)
+        sid = getattr(request, "session_id", None)
+        if stream is None and sid is not None:
+            if self.cluster is not None:
+                spec = self.cluster.spec(sid)
+                stream = spec.stream_id if spec is not None else None
+            else:
+                with self.lock:
+                    rec = self.sessions.get(sid)
+                stream = rec.stream_id if rec is not None else None
+        return stream if stream is not None else "request:" + request.request_id
+
     def _start(self, req: Any) -> Any:
-        from schemas import Ack
+        from schemas import Ack, SessionSpec
 
         if req.preset.lower().replace("_", "-") not in PRESETS:
             raise _Refused("unknown_preset", f"unknown preset {req.preset!r}; choose one of "
@@ -174,22 +273,9 @@ class ControlPlane:
         except ARCFError as exc:
             raise _Refused("invalid_parameter", str(exc)) from exc
         sid = req.session_id or uuid.uuid4().hex
-        with self.lock:
-            if sid in self.sessions:
-                raise _Refused("invalid_request", f"session {sid!r} already exists")
-            n = sum(1 for r in self.sessions.values() if r.stream_id == req.stream_id)
-            if n >= self.settings.max_sessions_per_stream:
-                raise _Refused("invalid_request", f"stream {req.stream_id!r} already has {n} "
-                               "sessions (max_sessions_per_stream)")
-            same = [r.worker for r in self.sessions.values() if r.stream_id == req.stream_id]
-            if same:
-                w = same[0]  # every session of a stream on one worker: decode once
-            else:
-                load = [0] * len(self.queues)
-                for _stream, worker in {(r.stream_id, r.worker) for r in self.sessions.values()}:
-                    load[worker] += 1
-                w = place(req.stream_id, load)
-            self.sessions[sid] = SessionRecord(sid, req.stream_id, req.preset, w, time.time())
+        if self.cluster is not None and self.cluster.spec(sid) is not None:
+            raise _Refused("invalid_request", f"session {sid!r} already exists")
+        w = self._admit(sid, req.stream_id, req.preset)
         try:
             self._forward(w, {"op": "start", "session_id": sid, "stream_id": req.stream_id,
                               "box": list(req.box), "preset": req.preset,
@@ -198,6 +284,10 @@ class ControlPlane:
             with self.lock:
                 self.sessions.pop(sid, None)
             raise
+        if self.cluster is not None:
+            self.cluster.publish(SessionSpec(
+                session_id=sid, stream_id=req.stream_id, preset=req.preset,
+                overrides=dict(req.overrides), box=req.box, frame_seq=req.frame_seq))
         return Ack(request_id=req.request_id, session_id=sid, stream_id=req.stream_id,
                    message=f"session started on worker {w} (subscribed, tracker ready)")
 
@@ -205,6 +295,9 @@ class ControlPlane:
         with self.lock:
             rec = self.sessions.get(session_id)
         if rec is None:
+            if self.cluster is not None and self.cluster.spec(session_id) is not None:
+                raise _Refused("internal", f"session {session_id!r} is moving to this instance "
+                               "(a takeover in progress); retry")
             raise _Refused("unknown_session", f"no session {session_id!r}")
         return rec
 
@@ -214,6 +307,10 @@ class ControlPlane:
         rec = self._record(req.session_id)
         self._forward(rec.worker, {"op": "reinit", "session_id": rec.session_id,
                                    "box": list(req.box), "frame_seq": req.frame_seq})
+        if self.cluster is not None and (spec := self.cluster.spec(rec.session_id)) is not None:
+            # a takeover before the next result starts from the new box, not the old one
+            self.cluster.publish(spec.model_copy(update={"box": req.box,
+                                                         "frame_seq": req.frame_seq}))
         return Ack(request_id=req.request_id, session_id=rec.session_id,
                    stream_id=rec.stream_id, message="re-initialisation queued")
 
@@ -223,6 +320,8 @@ class ControlPlane:
         rec = self._record(req.session_id)
         with self.lock:
             self.sessions.pop(rec.session_id, None)
+        if self.cluster is not None:
+            self.cluster.withdraw(rec.session_id)
         self._forward(rec.worker, {"op": "stop", "session_id": rec.session_id})
         return Ack(request_id=req.request_id, session_id=rec.session_id,
                    stream_id=rec.stream_id, message="session stopped")
@@ -231,14 +330,18 @@ class ControlPlane:
         from schemas import SessionInfo, Status
 
         with self.lock:
-            records = list(self.sessions.values())
+            records = [(r.session_id, r.stream_id, r.preset) for r in self.sessions.values()]
+        if self.cluster is not None:  # every instance's sessions
+            records = [(s.session_id, s.stream_id, s.preset) for s in self.cluster.all_specs()]
         return Status(
             request_id=req.request_id, instance_id=self.settings.instance_id,
             version=self.version, workers=len(self.queues),
-            streams=sorted({r.stream_id for r in records}),
-            sessions=[SessionInfo(session_id=r.session_id, stream_id=r.stream_id,
-                                  preset=r.preset, frames=0) for r in records],
+            streams=sorted({stream for _, stream, _ in records}),
+            sessions=[SessionInfo(session_id=sid, stream_id=stream, preset=preset, frames=0)
+                      for sid, stream, preset in sorted(records)],
             uptime_s=time.time() - self.started,
+            instances=self.cluster.live() if self.cluster is not None
+            else [self.settings.instance_id],
         )
 
 

@@ -27,6 +27,10 @@ RESULTS = Counter("arcf_results_published_total", "Result messages published")
 ERRORS = Counter("arcf_errors_total", "Errors by kind", ["kind"])
 CONTROL = Counter("arcf_control_requests_total", "Control requests by type and outcome",
                   ["type", "outcome"])
+TAKEOVERS = Counter("arcf_sessions_taken_over_total",
+                    "Sessions this instance took over from another (failover or rebalance)")
+HANDOVERS = Counter("arcf_sessions_handed_over_total",
+                    "Sessions this instance handed to another (an instance joined)")
 STREAMS = Gauge("arcf_active_streams", "Streams with at least one session",
                 multiprocess_mode="livesum")
 SESSIONS = Gauge("arcf_active_sessions", "Tracking sessions", multiprocess_mode="livesum")

@@ -126,8 +126,8 @@ class Worker:
         _warm_up()  # before the liveliness token: "ready" means no first-frame import stall
         self.session = open_session("client", connect=settings.worker_endpoints,
                                     config_file=settings.zenoh_config, lease_ms=settings.lease_ms)
-        self.token = self.session.liveliness().declare_token(
-            self.keys.worker_token(settings.instance_id, str(index)))
+        self.token_key = self.keys.worker_token(settings.instance_id, str(index))
+        self.token = self.session.liveliness().declare_token(self.token_key)
         self.streams: dict[str, _Stream] = {}
         self.sessions: dict[str, _Session] = {}
         self.busy = metrics.BUSY.labels(worker=str(index))
@@ -179,16 +179,31 @@ class Worker:
             errors = self.session.declare_publisher(
                 self.keys.errors(stream_id), congestion_control=self.zenoh.CongestionControl.DROP)
             stream = self.streams[stream_id] = _Stream(stream_id, sub, inbox, errors)
+            self._sync_with_router()
             self.metrics.STREAMS.inc()
         pub = self.session.declare_publisher(
             self.keys.results(stream_id, cmd["session_id"]),
             congestion_control=self.zenoh.CongestionControl.DROP)
         s = _Session(cmd["session_id"], stream_id, cmd["preset"],
                      create_tracker(cmd["preset"], **cmd.get("overrides", {})), pub,
-                     pending_box=tuple(cmd["box"]), pending_seq=cmd.get("frame_seq"))
+                     pending_box=tuple(cmd["box"]), pending_seq=cmd.get("frame_seq"),
+                     pending_status=cmd.get("status", "initialized"))
+        if s.pending_status == "resumed" and s.pending_seq:
+            # frames between the last published result and the takeover count as dropped
+            s.last_seq = s.pending_seq - 1
         stream.sessions[s.session_id] = s
         self.sessions[s.session_id] = s
         self.metrics.SESSIONS.inc()
+
+    def _sync_with_router(self) -> None:
+        """Return once the router has processed this worker's latest declarations.
+
+        A subscriber declaration travels to the router asynchronously, and the control plane's
+        ack (over a multiprocessing queue) could overtake it: the client would then publish
+        the session's first frame before the router knows where to send it. A liveliness query
+        is answered by the router, after everything this session sent before it."""
+        for _ in self.session.liveliness().get(self.token_key, timeout=2.0):
+            pass
 
     def _stop(self, session_id: str) -> None:
         s = self.sessions.pop(session_id, None)
@@ -281,8 +296,11 @@ class Worker:
 
     # ------------------------------------------------------------------ loop
     def run(self) -> None:
+        import os
+
+        parent = os.getppid()
         busy_s, t_window = 0.0, time.monotonic()
-        while not self.stop.is_set():
+        while not self.stop.is_set() and os.getppid() == parent:
             # cleared before draining: anything arriving from now on wakes the next round
             self.wake.wait(timeout=0.5)
             self.wake.clear()
@@ -316,10 +334,28 @@ class Worker:
         self.session.close()
 
 
+def _die_with_parent() -> None:
+    """Ask Linux to SIGKILL this worker when its launcher dies, however it dies.
+
+    A worker outliving a SIGKILLed instance would go on tracking its streams next to the
+    instance that takes them over (two owners, duplicate results). The run loop also checks the
+    parent pid, for systems without ``prctl``."""
+    import ctypes
+    import signal
+    import sys
+
+    if sys.platform.startswith("linux"):
+        try:
+            ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+        except OSError:
+            log.debug("prctl unavailable", exc_info=True)
+
+
 def worker_main(index: int, settings: Any, commands: Any, responses: Any, stop: Any) -> None:
     """Entry point of a spawned worker process."""
     import signal
 
+    _die_with_parent()
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the launcher decides when workers stop
     cv2.setNumThreads(1)
     worker = Worker(index, settings, commands, responses, stop)

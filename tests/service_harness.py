@@ -34,12 +34,20 @@ def worker_pids(pid: int) -> set[int]:
 
 
 class ServiceProcess:
-    def __init__(self, *extra: str) -> None:
-        self.endpoint = f"tcp/127.0.0.1:{free_port()}"
+    """One ``arcf-service``: by default with its embedded router on a free port; with
+    ``connect``, a client-mode instance of a multi-instance deployment."""
+
+    def __init__(self, *extra: str, connect: str | None = None, workers: int = 2) -> None:
+        if connect:
+            self.endpoint = connect
+            where = ["--mode", "client", "--connect", connect]
+        else:
+            self.endpoint = f"tcp/127.0.0.1:{free_port()}"
+            where = ["--listen", self.endpoint]
         metrics_port = free_port()
         self.metrics_url = f"http://127.0.0.1:{metrics_port}/metrics"
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "service.app", "--listen", self.endpoint, "--workers", "2",
+            [sys.executable, "-m", "service.app", *where, "--workers", str(workers),
              "--metrics-port", str(metrics_port), *extra],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
             cwd=Path(__file__).resolve().parent.parent, env=dict(os.environ))
@@ -62,3 +70,23 @@ class ServiceProcess:
         return code
 
 
+
+
+class RouterProcess:
+    """A plain Zenoh router (``arcf-router``) on a free loopback port."""
+
+    def __init__(self) -> None:
+        self.endpoint = f"tcp/127.0.0.1:{free_port()}"
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "service.router", "--listen", self.endpoint],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+            cwd=Path(__file__).resolve().parent.parent)
+        assert self.proc.stdout is not None
+        line = self.proc.stdout.readline()
+        if "ready" not in line:
+            self.proc.kill()
+            raise RuntimeError(f"router did not start: {line!r}")
+
+    def stop(self) -> int:
+        self.proc.send_signal(signal.SIGTERM)
+        return self.proc.wait(timeout=30)

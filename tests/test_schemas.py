@@ -31,6 +31,7 @@ from schemas import (
     ResultStatus,
     SchemaError,
     SessionInfo,
+    SessionSpec,
     StartRequest,
     Status,
     StatusRequest,
@@ -100,6 +101,17 @@ def samples() -> dict[str, Message]:
             streams=["cam1"],
             sessions=[SessionInfo(session_id="s1", stream_id="cam1", preset="arcf-hc", frames=9)],
             uptime_s=12.5,
+            instances=["host-a.1", "host-b.1"],
+        ),
+        "session_spec": SessionSpec(
+            session_id="s1",
+            stream_id="cam1",
+            preset="arcf-hc",
+            overrides={"admm_iterations": 3},
+            box=(120.0, 80.0, 40.0, 30.0),
+            frame_seq=0,
+            last_seq=41,
+            last_box=(131.5, 84.25, 41.0, 30.5),
         ),
     }
 

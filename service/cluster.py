@@ -1,0 +1,231 @@
+"""Scale-out: instances of the service on one Zenoh network share the streams.
+
+Zenoh is the fabric; nothing here is a broker. Three Zenoh mechanisms carry it:
+
+* **Membership**: each instance's main process holds a liveliness token
+  ``<prefix>/instances/<id>``. Every instance watches those tokens, so every instance knows the
+  live set. A killed instance's token vanishes when its connection closes; a hung one's when the
+  Zenoh lease expires (``lease_ms``).
+* **Ownership**: a stream belongs to the instance with the highest rendezvous weight for it
+  among the live set (:func:`owner`). Every instance computes the same answer from the same
+  set without talking, and a change of the set moves only the streams of the instance that
+  left, or a fair share to the one that joined.
+* **Session registry**: the owner of a session puts its spec (stream, preset, overrides, box)
+  on ``<prefix>/registry/<session>`` and deletes it when the session stops; every instance
+  subscribes, and every instance follows every session's results, keeping the last published
+  box. When an owner dies, the new owner resumes its sessions from that box on the next frame.
+  A joining instance asks the others for their registry (a query on ``<prefix>/registry/*``)
+  before it announces itself.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import math
+import threading
+from collections.abc import Callable, Iterable
+from typing import Any
+
+from schemas import KeySpace, Result, SchemaError, SessionSpec, decode, encode
+
+log = logging.getLogger("arcf.service.cluster")
+
+
+def weight(key: str, member: str | int) -> int:
+    return int.from_bytes(
+        hashlib.blake2b(f"{key}\x00{member}".encode(), digest_size=8).digest(), "big")
+
+
+def owner(key: str, members: Iterable[Any]) -> Any:
+    """Rendezvous (highest-random-weight) hashing: the member that owns ``key``.
+
+    Every process computes the same owner from the same member set, and removing or adding a
+    member moves only the keys it owned (or, for a new member, the keys it now wins)."""
+    return max(members, key=lambda m: weight(key, m))
+
+
+class Cluster:
+    """Membership, the replicated session registry and the last box of every session.
+
+    ``on_change`` is called (from a thread of its own, never inside a Zenoh callback) whenever
+    the live set or the registry changed, so the control plane can take over or hand over.
+    """
+
+    def __init__(self, session: Any, keys: KeySpace, instance_id: str,
+                 on_change: Callable[[], None] | None = None) -> None:
+        self.session = session
+        self.keys = keys
+        self.instance_id = instance_id
+        self.on_change = on_change
+        self.lock = threading.Lock()
+        self.members: set[str] = set()
+        self.specs: dict[str, SessionSpec] = {}
+        #: session -> (frame_seq, box) of its last result with a box
+        self.last: dict[str, tuple[int, tuple[float, float, float, float]]] = {}
+        self.joined = False
+        self._changed = threading.Event()
+        self._closing = False
+        self._token: Any = None
+        self._subs: list[Any] = []
+        self._queryable: Any = None
+        self._thread = threading.Thread(target=self._notify_loop, name="arcf-cluster",
+                                        daemon=True)
+
+    # ------------------------------------------------------------------ lifecycle
+    def start(self) -> None:
+        """Follow the registry and the results, fetch the others' registry, but do not join
+        yet: the instance announces itself (:meth:`join`) once its workers are ready."""
+        import zenoh
+
+        self._subs.append(self.session.declare_subscriber(self.keys.registry_all(),
+                                                          self._on_registry))
+        self._subs.append(self.session.declare_subscriber(self.keys.all_results(),
+                                                          self._on_result))
+        self._queryable = self.session.declare_queryable(self.keys.registry_all(),
+                                                         self._on_registry_query)
+        for reply in self.session.get(self.keys.registry_all(), timeout=2.0,
+                                      target=zenoh.QueryTarget.ALL):
+            if reply.ok is not None:
+                self._merge(reply.ok.payload.to_bytes())
+        self._subs.append(self.session.liveliness().declare_subscriber(
+            self.keys.all_instances(), self._on_member, history=True))
+        self._thread.start()
+
+    def join(self) -> None:
+        self._token = self.session.liveliness().declare_token(
+            self.keys.instance_token(self.instance_id))
+        with self.lock:
+            self.members.add(self.instance_id)
+            self.joined = True
+        self._changed.set()
+
+    def close(self) -> None:
+        self._closing = True
+        self._changed.set()
+        if self._token is not None:
+            self._token.undeclare()
+        for sub in self._subs:
+            sub.undeclare()
+        if self._queryable is not None:
+            self._queryable.undeclare()
+
+    # ------------------------------------------------------------------ queries
+    def live(self) -> list[str]:
+        with self.lock:
+            return sorted(self.members)
+
+    def owner_of(self, key: str) -> str:
+        """The live instance that owns ``key`` (a stream id, or any key the instances must agree
+        on, e.g. which one answers a request about nothing in particular)."""
+        with self.lock:
+            members = self.members or {self.instance_id}
+            return owner(key, members)
+
+    def mine(self, key: str) -> bool:
+        return self.owner_of(key) == self.instance_id
+
+    def spec(self, session_id: str) -> SessionSpec | None:
+        with self.lock:
+            return self.specs.get(session_id)
+
+    def all_specs(self) -> list[SessionSpec]:
+        with self.lock:
+            return list(self.specs.values())
+
+    def resume_point(self, session_id: str) -> tuple[tuple[float, ...], int | None, bool]:
+        """Where a session taken over starts again: (box, frame_seq, resumed). From its last
+        published box on the next frame; from its start box if it never published one."""
+        with self.lock:
+            last = self.last.get(session_id)
+            spec = self.specs.get(session_id)
+        if last is not None:
+            return last[1], last[0] + 1, True
+        assert spec is not None
+        return tuple(spec.box), spec.frame_seq, False
+
+    # ------------------------------------------------------------------ registry writes
+    def publish(self, spec: SessionSpec) -> None:
+        with self.lock:
+            self.specs[spec.session_id] = spec
+        self.session.put(self.keys.registry(spec.session_id), encode(spec))
+
+    def withdraw(self, session_id: str) -> None:
+        with self.lock:
+            self.specs.pop(session_id, None)
+            self.last.pop(session_id, None)
+        self.session.delete(self.keys.registry(session_id))
+
+    # ------------------------------------------------------------------ Zenoh callbacks
+    def _on_member(self, sample: Any) -> None:
+        import zenoh
+
+        instance = str(sample.key_expr).rsplit("/", 1)[-1]
+        with self.lock:
+            if sample.kind == zenoh.SampleKind.PUT:
+                self.members.add(instance)
+            elif instance != self.instance_id:
+                self.members.discard(instance)
+        log.info("instance %s %s; live: %s", instance,
+                 "joined" if sample.kind == zenoh.SampleKind.PUT else "left", self.live())
+        self._changed.set()
+
+    def _on_registry(self, sample: Any) -> None:
+        import zenoh
+
+        if sample.kind == zenoh.SampleKind.DELETE:
+            sid = str(sample.key_expr).rsplit("/", 1)[-1]
+            with self.lock:
+                self.specs.pop(sid, None)
+                self.last.pop(sid, None)
+        else:
+            self._merge(sample.payload.to_bytes())
+        self._changed.set()
+
+    def _merge(self, payload: bytes) -> None:
+        try:
+            spec = decode(payload, expected=SessionSpec)
+        except SchemaError as exc:
+            log.warning("ignoring a malformed registry entry: %s", exc)
+            return
+        with self.lock:
+            self.specs[spec.session_id] = spec
+            if spec.last_seq is not None and spec.last_box is not None:
+                known = self.last.get(spec.session_id)
+                if known is None or known[0] < spec.last_seq:
+                    self.last[spec.session_id] = (spec.last_seq, tuple(spec.last_box))
+
+    def _on_registry_query(self, query: Any) -> None:
+        """A joining instance asks what runs: every known session, with its last box."""
+        with self.lock:
+            entries = [(s, self.last.get(s.session_id)) for s in self.specs.values()]
+        for spec, last in entries:
+            if last is not None:
+                spec = spec.model_copy(update={"last_seq": last[0], "last_box": last[1]})
+            query.reply(self.keys.registry(spec.session_id), encode(spec))
+
+    def _on_result(self, sample: Any) -> None:
+        try:
+            r = decode(sample.payload.to_bytes(), expected=Result)
+        except SchemaError:
+            return
+        if r.status.value == "error" or not all(math.isfinite(v) for v in r.box):
+            return
+        with self.lock:
+            if r.session_id not in self.specs:
+                return
+            known = self.last.get(r.session_id)
+            if known is None or known[0] < r.frame_seq:
+                self.last[r.session_id] = (r.frame_seq, tuple(r.box))
+
+    def _notify_loop(self) -> None:
+        while True:
+            self._changed.wait()
+            self._changed.clear()
+            if self._closing:
+                return
+            if self.joined and self.on_change is not None:
+                try:
+                    self.on_change()
+                except Exception:  # the next change tries again
+                    log.exception("rebalancing failed")

@@ -1,0 +1,253 @@
+"""The deployment files, checked as far as a machine without a Docker engine allows.
+
+* compose: parsed and cross-checked (images, mounts that exist, settings the service knows,
+  Prometheus targets), and ``docker compose config`` when a compose binary is installed;
+* Prometheus: parsed, targets match the compose services, ``promtool check config`` if present;
+* Grafana: provisioning parsed, dashboard JSON valid, every query names a metric we export;
+* Zenoh: every config file parsed by Zenoh itself (it rejects unknown keys), and the router
+  config run as a real router that a client and the service reach;
+* Dockerfile: its build steps replayed in a fresh virtualenv, and the image's entrypoint and
+  healthcheck run from it with the image's environment.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+from service_harness import free_port
+
+from service.settings import ServiceSettings
+
+ROOT = Path(__file__).resolve().parent.parent
+DEPLOY = ROOT / "deploy"
+
+
+def compose() -> dict[str, Any]:
+    return yaml.safe_load((DEPLOY / "compose.yaml").read_text())
+
+
+def arcf_services(doc: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    return {name: svc for name, svc in doc["services"].items()
+            if svc.get("build", {}).get("dockerfile") == "deploy/Dockerfile"}
+
+
+def exported_metrics() -> set[str]:
+    text = (ROOT / "service" / "metrics.py").read_text()
+    return set(re.findall(r'"(arcf_[a-z_]+)"', text))
+
+
+# ---------------------------------------------------------------------------------- compose
+def test_compose_stack_has_router_instances_prometheus_grafana() -> None:
+    doc = compose()
+    services = doc["services"]
+    assert services["zenoh-router"]["image"].startswith("eclipse/zenoh:")
+    instances = arcf_services(doc)
+    assert len(instances) >= 2
+    fields = set(ServiceSettings.__dataclass_fields__)
+    ids = set()
+    for svc in instances.values():
+        env = svc["environment"]
+        for key in env:
+            if key.startswith("ARCF_SERVICE_"):  # every setting is one the service reads
+                assert key.removeprefix("ARCF_SERVICE_").lower() in fields, key
+        assert env["ARCF_SERVICE_MODE"] == "client"
+        assert env["ARCF_SERVICE_CONNECT"] == "tcp/zenoh-router:7447"
+        ids.add(env["ARCF_SERVICE_INSTANCE_ID"])
+        assert "shm_size" in svc  # sized explicitly for containers
+        assert svc["depends_on"]["zenoh-router"]
+    assert len(ids) == len(instances)  # distinct instance ids
+    assert "prometheus" in services and "grafana" in services
+    # every file mounted from the repository exists
+    for svc in services.values():
+        for volume in svc.get("volumes", []):
+            source = volume.split(":")[0]
+            if source.startswith("./"):
+                assert (DEPLOY / source).exists(), source
+
+
+def test_compose_config_validates_with_docker_compose() -> None:
+    if shutil.which("docker") and subprocess.run(["docker", "compose", "version"],
+                                                 capture_output=True).returncode == 0:
+        cmd = ["docker", "compose"]
+    elif shutil.which("docker-compose"):
+        cmd = ["docker-compose"]
+    else:
+        pytest.skip("no docker compose binary on this machine")
+    out = subprocess.run([*cmd, "-f", str(DEPLOY / "compose.yaml"), "config"],
+                         capture_output=True, text=True, cwd=DEPLOY, timeout=60)
+    assert out.returncode == 0, out.stderr
+    resolved = yaml.safe_load(out.stdout)
+    assert resolved["services"]["arcf-1"]["environment"]["ARCF_SERVICE_INSTANCE_ID"] == "arcf-1"
+
+
+# ---------------------------------------------------------------------------------- prometheus
+def test_prometheus_scrapes_every_instance() -> None:
+    prom = yaml.safe_load((DEPLOY / "prometheus" / "prometheus.yml").read_text())
+    jobs = {job["job_name"]: job for job in prom["scrape_configs"]}
+    targets = {t for sc in jobs["arcf-service"]["static_configs"] for t in sc["targets"]}
+    doc = compose()
+    for name, svc in arcf_services(doc).items():
+        port = svc["environment"].get("ARCF_SERVICE_METRICS_PORT") or \
+            doc["x-arcf-env"]["ARCF_SERVICE_METRICS_PORT"]
+        assert f"{name}:{port}" in targets
+    if shutil.which("promtool"):
+        out = subprocess.run(["promtool", "check", "config",
+                              str(DEPLOY / "prometheus" / "prometheus.yml")],
+                             capture_output=True, text=True, timeout=60)
+        assert out.returncode == 0, out.stdout + out.stderr
+
+
+# ---------------------------------------------------------------------------------- grafana
+def test_grafana_dashboard_queries_exported_metrics() -> None:
+    ds = yaml.safe_load((DEPLOY / "grafana/provisioning/datasources/prometheus.yaml").read_text())
+    uid = ds["datasources"][0]["uid"]
+    prov = yaml.safe_load((DEPLOY / "grafana/provisioning/dashboards/arcf.yaml").read_text())
+    assert prov["providers"][0]["options"]["path"] == "/var/lib/grafana/dashboards"
+    dash = json.loads((DEPLOY / "grafana/dashboards/arcf.json").read_text())
+    names = exported_metrics()
+    titles = " ".join(p["title"].lower() for p in dash["panels"])
+    for needed in ("latency", "fps", "sessions", "dropped", "errors"):
+        assert needed in titles
+    ids = [p["id"] for p in dash["panels"]]
+    assert len(ids) == len(set(ids))
+    for panel in dash["panels"]:
+        assert panel["datasource"]["uid"] == uid
+        for target in panel["targets"]:
+            for metric in re.findall(r"\barcf_[a-z_]+", target["expr"]):
+                base = re.sub(r"_(bucket|sum|count)$", "", metric)
+                assert base in names, f"{panel['title']}: {metric} is not exported"
+
+
+# ---------------------------------------------------------------------------------- zenoh
+@pytest.mark.parametrize("name", ["router", "service", "router-tls-acl", "client-tls"])
+def test_zenoh_configs_parse(name: str) -> None:
+    zenoh = pytest.importorskip("zenoh")
+    zenoh.Config.from_file(str(DEPLOY / "zenoh" / f"{name}.json5"))  # strict: unknown keys fail
+
+
+def test_router_config_runs_a_router_the_service_reaches() -> None:
+    zenoh = pytest.importorskip("zenoh")
+    port = free_port()
+    conf = zenoh.Config.from_file(str(DEPLOY / "zenoh" / "router.json5"))
+    conf.insert_json5("listen/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
+    conf.insert_json5("plugins", "{}")  # no REST port in a test
+    with zenoh.open(conf):
+        from service_harness import ServiceProcess
+
+        from service.client import TrackingClient
+
+        svc = ServiceProcess("--zenoh-config", str(DEPLOY / "zenoh" / "service.json5"),
+                             connect=f"tcp/127.0.0.1:{port}", workers=1)
+        try:
+            with TrackingClient(connect=[f"tcp/127.0.0.1:{port}"]) as client:
+                assert client.status().workers == 1
+        finally:
+            assert svc.stop() == 0
+
+
+# ---------------------------------------------------------------------------------- Dockerfile
+def dockerfile_stages() -> list[dict[str, Any]]:
+    """The Dockerfile as stages of (instruction, argument) pairs, continuations joined."""
+    text = (DEPLOY / "Dockerfile").read_text()
+    text = re.sub(r"\\\n\s*", " ", text)
+    stages: list[dict[str, Any]] = []
+    for line in text.splitlines():
+        line = line.strip()
+        if not line or line.startswith("#"):
+            continue
+        op, _, arg = line.partition(" ")
+        op = op.upper()
+        if op == "FROM":
+            stages.append({"from": arg, "steps": []})
+        elif stages:
+            stages[-1]["steps"].append((op, arg.strip()))
+    return stages
+
+
+def test_dockerfile_is_multistage_slim_nonroot_with_healthcheck() -> None:
+    stages = dockerfile_stages()
+    assert len(stages) >= 2
+    runtime = stages[-1]
+    assert "slim" in runtime["from"]
+    ops = dict(runtime["steps"])
+    assert ops["USER"] not in ("root", "0")
+    assert "HEALTHCHECK" in ops and "arcf-healthcheck" in ops["HEALTHCHECK"]
+    assert json.loads(ops["ENTRYPOINT"]) == ["arcf-service"]
+    copies = [arg for op, arg in runtime["steps"] if op == "COPY"]
+    assert copies and all("--from=" in c for c in copies)  # only the built virtualenv
+
+
+@pytest.mark.skipif(os.environ.get("ARCF_SKIP_DOCKERFILE_REPLAY") == "1",
+                    reason="ARCF_SKIP_DOCKERFILE_REPLAY=1")
+def test_dockerfile_build_steps_replayed_in_a_virtualenv(tmp_path: Path) -> None:
+    """The build stage's COPY and RUN steps, replayed with /opt/arcf -> a fresh virtualenv;
+    then the runtime stage's entrypoint and healthcheck, with the image's environment."""
+    build, runtime = dockerfile_stages()[0], dockerfile_stages()[-1]
+    context = tmp_path / "src"
+    context.mkdir()
+    venv = tmp_path / "opt-arcf"
+    for op, arg in build["steps"]:
+        if op == "COPY":
+            *sources, _dest = arg.split()
+            for source in sources:
+                src = ROOT / source
+                assert src.exists(), f"COPY {source}: not in the repository"
+                target = context / source
+                if src.is_dir():
+                    shutil.copytree(src, target, ignore=shutil.ignore_patterns("__pycache__"))
+                else:
+                    shutil.copy2(src, target)
+        elif op == "RUN":
+            cmd = arg.replace("/opt/arcf", str(venv)).replace("python -m venv",
+                                                              f"{sys.executable} -m venv")
+            out = subprocess.run(cmd, shell=True, cwd=context, capture_output=True, text=True,
+                                 timeout=900)
+            assert out.returncode == 0, out.stdout[-2000:] + out.stderr[-2000:]
+    env = {"PATH": f"{venv}/bin:/usr/bin:/bin", "HOME": str(tmp_path)}
+    for op, arg in runtime["steps"]:
+        if op == "ENV":
+            for key, value in re.findall(r'(\w+)=("[^"]*"|\S+)', arg):
+                env[key] = value.strip('"').replace("/opt/arcf", str(venv)).replace(
+                    "$PATH", env["PATH"])
+    # the image's settings, with the router and metrics moved onto free loopback ports
+    router_port, metrics_port = free_port(), free_port()
+    env.update(ARCF_SERVICE_CONNECT=f"tcp/127.0.0.1:{router_port}",
+               ARCF_SERVICE_METRICS_PORT=str(metrics_port), ARCF_SERVICE_WORKERS="1",
+               ARCF_SERVICE_METRICS_HOST="127.0.0.1")
+    router = subprocess.Popen([f"{venv}/bin/arcf-router", "--listen",
+                               f"tcp/127.0.0.1:{router_port}"], env=env, cwd=tmp_path,
+                              stdout=subprocess.PIPE, text=True)
+    assert router.stdout is not None and "ready" in router.stdout.readline()
+    entry = json.loads(dict(runtime["steps"])["ENTRYPOINT"])
+    svc = subprocess.Popen(entry, env=env, cwd=tmp_path, stdout=subprocess.PIPE,
+                           stderr=subprocess.PIPE, text=True)
+    try:
+        assert svc.stdout is not None
+        line = svc.stdout.readline()
+        assert "ready" in line, line + (svc.stderr.read() if svc.poll() is not None else "")
+        health = dict(runtime["steps"])["HEALTHCHECK"].split("CMD", 1)[1].strip()
+        deadline = time.monotonic() + 30
+        while True:
+            out = subprocess.run(json.loads(health), env=env, capture_output=True, text=True)
+            if out.returncode == 0 or time.monotonic() > deadline:
+                break
+            time.sleep(0.5)
+        assert out.returncode == 0, out.stdout + out.stderr
+    finally:
+        svc.terminate()
+        assert svc.wait(timeout=30) == 0
+        router.terminate()
+        router.wait(timeout=30)
+    # and unhealthy once it is gone
+    out = subprocess.run(json.loads(health), env=env, capture_output=True, text=True)
+    assert out.returncode == 1

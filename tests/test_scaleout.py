@@ -1,0 +1,169 @@
+"""Scale-out on loopback: three service instances and a Zenoh router, as separate processes.
+
+Streams spread over all three; a SIGKILLed instance's streams are resumed by the survivors from
+their last published box, and no other stream notices; a fourth instance takes over its share
+without interrupting the rest.
+"""
+
+from __future__ import annotations
+
+import itertools
+import signal
+import threading
+import time
+from collections import defaultdict
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+pytest.importorskip("zenoh")
+
+from service_harness import RouterProcess, ServiceProcess
+
+from arcf.data import data_root
+from arcf.eval import load_dataset
+from service.client import TrackingClient
+from service.cluster import owner
+
+pytestmark = pytest.mark.skipif(not (data_root() / "uav123_10fps").is_dir(),
+                                reason="needs ../shared/data")
+
+FPS = 5.0
+IDS = ["inst-a", "inst-b", "inst-c"]
+
+
+def pick_streams() -> list[str]:
+    """Six stream ids, two per instance of three; at least two move to a fourth, and the
+    victim (inst-b) owns two."""
+    for start in range(0, 10000, 7):
+        names = [f"cam-{start + k}" for k in range(6)]
+        three = [owner(n, IDS) for n in names]
+        four = [owner(n, [*IDS, "inst-d"]) for n in names]
+        if all(three.count(i) == 2 for i in IDS) and four.count("inst-d") >= 2:
+            return names
+    raise AssertionError("no stream names found")
+
+
+def gaps(results: list[tuple[Any, float]], t0: float, t1: float) -> int:
+    """Frames with no result among those whose results arrived between t0 and t1."""
+    seqs = sorted({r.frame_seq for r, t in results if t0 <= t <= t1})
+    return sum(b - a - 1 for a, b in itertools.pairwise(seqs))
+
+
+def test_instances_share_streams_fail_over_and_rebalance() -> None:
+    seq = load_dataset("uav123_10fps", sequences=["truck4_1"])[0]
+    frames = [p.read_bytes() for p in seq.frames]
+    streams = pick_streams()
+    router = RouterProcess()
+    extra = ("--lease-ms", "2000")
+    with ThreadPoolExecutor(3) as pool:
+        instances = dict(zip(IDS, pool.map(
+            lambda i: ServiceProcess("--instance-id", i, *extra, connect=router.endpoint,
+                                     workers=1), IDS), strict=True))
+    results: dict[str, list[tuple[Any, float]]] = defaultdict(list)
+    lock = threading.Lock()
+    stop = threading.Event()
+    client = TrackingClient(connect=[router.endpoint])
+    newcomer = None
+    try:
+        subs = []
+        for name in streams:
+            def on_result(r: Any, name: str = name) -> None:
+                with lock:
+                    results[name].append((r, time.monotonic()))
+            subs.append(client.results(name, callback=on_result))
+        status = client.status()
+        assert sorted(status.instances) == IDS
+        for name in streams:
+            client.start(name, seq.init_box, preset="bacf", session_id=f"s-{name}", frame_seq=0)
+
+        def publish() -> None:
+            t0 = time.monotonic()
+            i = 0
+            while not stop.is_set() and i < 600:  # bounded: 2 minutes at 5 fps
+                for name in streams:
+                    client.publish_frame(name, data=frames[i % len(frames)], seq=i)
+                i += 1
+                time.sleep(max(0.0, t0 + i / FPS - time.monotonic()))
+
+        publisher = threading.Thread(target=publish, daemon=True)
+        publisher.start()
+        time.sleep(4.0)
+
+        # 1. spread: every stream tracked, two sessions on each instance
+        for name in streams:
+            assert results[name], f"no results for {name}"
+        for i, svc in instances.items():
+            assert svc.metric("arcf_active_sessions") == 2, i
+        assert len(client.status().sessions) == 6  # any instance answers for all
+
+        # 2. failover: SIGKILL inst-b; its streams resume elsewhere, the others never notice
+        victim = [n for n in streams if owner(n, IDS) == "inst-b"]
+        others = [n for n in streams if n not in victim]
+        t_kill = time.monotonic()
+        instances["inst-b"].proc.send_signal(signal.SIGKILL)
+        instances["inst-b"].proc.wait(timeout=10)
+        deadline = t_kill + 10
+        resumed_at: dict[str, float] = {}
+        while time.monotonic() < deadline and len(resumed_at) < len(victim):
+            with lock:
+                for n in victim:
+                    hit = [t for r, t in results[n] if r.status.value == "resumed" and t > t_kill]
+                    if hit:
+                        resumed_at[n] = min(hit)
+            time.sleep(0.05)
+        assert sorted(resumed_at) == sorted(victim), "streams of the killed instance not resumed"
+        failover_s = max(resumed_at.values()) - t_kill
+        assert failover_s < 5.0
+        time.sleep(2.0)
+        with lock:
+            for n in others:
+                assert gaps(results[n], t_kill - 1.0, time.monotonic()) == 0, n
+                assert not any(r.status.value == "resumed" for r, _ in results[n])
+            for n in victim:  # resumed from the last box, and tracking since
+                after = [r for r, t in results[n] if t > resumed_at[n]]
+                assert len(after) >= 5 and all(r.status.value == "tracking" for r in after[1:])
+        survivors = [i for i in IDS if i != "inst-b"]
+        assert sum(instances[i].metric("arcf_sessions_taken_over_total")
+                   for i in survivors) == len(victim)
+        assert sum(instances[i].metric("arcf_active_sessions") for i in survivors) == 6
+        # 3. a fourth instance takes over its share; the rest run on untouched
+        t_join = time.monotonic()
+        newcomer = ServiceProcess("--instance-id", "inst-d", *extra, connect=router.endpoint,
+                                  workers=1)
+        live = [*survivors, "inst-d"]
+        moving = [n for n in streams if owner(n, live) == "inst-d"]
+        staying = [n for n in streams if n not in moving]
+        assert moving
+        deadline = time.monotonic() + 10
+        moved: set[str] = set()
+        while time.monotonic() < deadline and len(moved) < len(moving):
+            with lock:
+                moved = {n for n in moving
+                         if any(r.status.value == "resumed" and t > t_join
+                                for r, t in results[n])}
+            time.sleep(0.05)
+        assert moved == set(moving)
+        time.sleep(2.0)
+        assert newcomer.metric("arcf_active_sessions") == len(moving)
+        with lock:
+            for n in staying:
+                assert gaps(results[n], t_join, time.monotonic()) == 0, n
+                assert not any(r.status.value == "resumed" and t > t_join
+                               for r, t in results[n])
+            for n in streams:  # every session keeps producing results
+                assert any(t > time.monotonic() - 1.0 for _, t in results[n]), n
+        print(f"failover {failover_s * 1e3:.0f} ms")
+    finally:
+        stop.set()
+        client.close()
+        for svc in [*instances.values(), *([newcomer] if newcomer else [])]:
+            if svc.proc.poll() is None:
+                assert svc.stop() == 0
+        router.stop()
+        for svc in instances.values():  # no orphaned worker of the killed instance
+            for pid in svc.workers:
+                stat = Path(f"/proc/{pid}/stat")
+                assert not stat.exists() or stat.read_text().rsplit(")", 1)[1].split()[0] == "Z"
