@@ -26,8 +26,6 @@ import argparse
 import json
 import os
 import platform
-import socket
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -37,6 +35,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from service.loadtest import passes, run_load  # noqa: E402
+from service.procs import ServiceProcess  # noqa: E402
 
 
 def cpu_model() -> str:
@@ -46,31 +45,11 @@ def cpu_model() -> str:
     return platform.processor()
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
 def image_size(seq: Any) -> list[int]:
     import cv2
 
     h, w = cv2.imread(str(seq.frames[0]), cv2.IMREAD_UNCHANGED).shape[:2]
     return [w, h]
-
-
-def spawn_service() -> tuple[subprocess.Popen[str], str, str]:
-    port, mport = free_port(), free_port()
-    endpoint = f"tcp/127.0.0.1:{port}"
-    proc = subprocess.Popen([sys.executable, "-m", "service.app", "--listen", endpoint,
-                             "--metrics-port", str(mport)], stdout=subprocess.PIPE, text=True,
-                            cwd=ROOT)
-    assert proc.stdout is not None
-    line = proc.stdout.readline()
-    if "ready" not in line:
-        proc.kill()
-        raise SystemExit(f"service did not start: {line!r}")
-    return proc, endpoint, f"http://127.0.0.1:{mport}/metrics"
 
 
 def main() -> int:
@@ -98,7 +77,8 @@ def main() -> int:
     presets = args.presets.split(",")
     rates = [float(x) for x in args.fps.split(",")]
     ncpu = os.cpu_count() or 1
-    proc, endpoint, metrics_url = spawn_service()
+    svc = ServiceProcess(workers=ncpu, quiet=False)
+    proc, endpoint, metrics_url = svc.proc, svc.endpoint, svc.metrics_url
     out: dict[str, Any] = {"machine": {"nproc": ncpu, "cpu": cpu_model()},
                            "capacity": [], "saturation": []}
     t_start = time.monotonic()
@@ -143,8 +123,7 @@ def main() -> int:
                           f"library {r['library_fps']:.1f} x {ncpu}", file=sys.stderr)
                     Path(args.out).write_text(json.dumps(out, indent=1, default=float))
     finally:
-        proc.terminate()
-        proc.wait(timeout=30)
+        svc.stop()
     out["minutes"] = (time.monotonic() - t_start) / 60
     Path(args.out).write_text(json.dumps(out, indent=1, default=float))
     print(markdown(out))

@@ -122,6 +122,9 @@ class Cluster:
             members = self.members or {self.instance_id}
             return owner(key, members)
 
+    def request_rebalance(self) -> None:
+        self._changed.set()
+
     def mine(self, key: str) -> bool:
         return self.owner_of(key) == self.instance_id
 

@@ -81,6 +81,9 @@ class ControlPlane:
             if item is None:
                 return
             cid, ok, message = item
+            if cid is None and str(message).startswith("fenced:"):
+                self._fenced(int(str(message).split(":", 1)[1]))
+                continue
             with self.lock:
                 waiter = self._waiting.pop(cid, None)
             if waiter is not None:
@@ -103,6 +106,15 @@ class ControlPlane:
             raise _Refused("internal", f"worker {worker} did not confirm within {self.timeout} s")
         if not slot[0]:
             raise _Refused("internal", f"worker {worker} failed: {slot[1]}")
+
+    def _fenced(self, worker: int) -> None:
+        """A worker dropped its sessions because this instance's token was lost (see
+        ``Worker._fence``): forget them, and rebalance once the instance is back."""
+        with self.lock:
+            for sid in [s for s, r in self.sessions.items() if r.worker == worker]:
+                del self.sessions[sid]
+        if self.cluster is not None:
+            self.cluster.request_rebalance()
 
     def worker_replaced(self, worker: int, new_queue: Any) -> list[SessionRecord]:
         """A worker died and a new one took its place: its sessions are gone (their trackers

@@ -22,7 +22,6 @@ import contextlib
 import json
 import os
 import re
-import subprocess
 import sys
 import threading
 import time
@@ -584,21 +583,11 @@ def main(argv: list[str] | None = None) -> int:
     connect, metrics_url = args.connect or ["tcp/127.0.0.1:7447"], args.metrics_url
     service_pid = args.service_pid
     if args.spawn_service:
-        import socket
+        from .procs import ServiceProcess
 
-        def free() -> int:
-            with socket.socket() as s:
-                s.bind(("127.0.0.1", 0))
-                return s.getsockname()[1]
-
-        port, mport = free(), free()
-        connect = [f"tcp/127.0.0.1:{port}"]
-        metrics_url = f"http://127.0.0.1:{mport}/metrics"
-        proc = subprocess.Popen([sys.executable, "-m", "service.app", "--listen", connect[0],
-                                 "--metrics-port", str(mport)], stdout=subprocess.PIPE, text=True)
-        service_pid = proc.pid
-        assert proc.stdout is not None
-        print(proc.stdout.readline().strip(), file=sys.stderr)
+        proc = ServiceProcess(workers=os.cpu_count() or 1, quiet=False)
+        connect, metrics_url, service_pid = [proc.endpoint], proc.metrics_url, proc.proc.pid
+        print(f"arcf-service started on {proc.endpoint}", file=sys.stderr)
     reports: list[dict[str, Any]] = []
     cache: dict[Any, Any] = {}
     try:
@@ -616,8 +605,7 @@ def main(argv: list[str] | None = None) -> int:
                 break
     finally:
         if proc is not None:
-            proc.terminate()
-            proc.wait(timeout=30)
+            proc.stop()
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.with_suffix(".json").write_text(json.dumps(reports, indent=1, default=float) + "\n")

@@ -128,6 +128,12 @@ class Worker:
                                     config_file=settings.zenoh_config, lease_ms=settings.lease_ms)
         self.token_key = self.keys.worker_token(settings.instance_id, str(index))
         self.token = self.session.liveliness().declare_token(self.token_key)
+        # Fencing: if this instance's token vanishes (its main process hung past the Zenoh
+        # lease, or is gone), the other instances take its streams over; this worker must stop
+        # tracking them, or two owners would publish results for the same sessions.
+        self.fenced = threading.Event()
+        self.instance_watch = self.session.liveliness().declare_subscriber(
+            self.keys.instance_token(settings.instance_id), self._on_instance_token)
         self.streams: dict[str, _Stream] = {}
         self.sessions: dict[str, _Session] = {}
         self.busy = metrics.BUSY.labels(worker=str(index))
@@ -135,6 +141,23 @@ class Worker:
         self.pending: deque[dict[str, Any]] = deque()
         threading.Thread(target=self._pump_commands, daemon=True,
                          name=f"worker-{index}-commands").start()
+
+    def _on_instance_token(self, sample: Any) -> None:
+        if sample.kind == self.zenoh.SampleKind.DELETE:
+            self.fenced.set()
+            self.wake.set()
+
+    def _fence(self) -> None:
+        """Drop every session and tell the control plane, which forgets them and lets the
+        rebalancing start them again if this instance still owns their streams."""
+        self.fenced.clear()
+        if not self.sessions:
+            return
+        log.warning("worker %d: instance token lost; dropping %d sessions", self.index,
+                    len(self.sessions))
+        for sid in list(self.sessions):
+            self._stop(sid)
+        self.responses.put((None, False, f"fenced:{self.index}"))
 
     def _pump_commands(self) -> None:
         """Move commands from the control plane's queue into the loop's wake-up."""
@@ -304,6 +327,8 @@ class Worker:
             # cleared before draining: anything arriving from now on wakes the next round
             self.wake.wait(timeout=0.5)
             self.wake.clear()
+            if self.fenced.is_set():
+                self._fence()
             worked = True
             while worked:  # one frame per stream per round, commands in between: fair shares
                 while self.pending:
@@ -328,6 +353,7 @@ class Worker:
                 busy_s, t_window = 0.0, now
 
     def close(self) -> None:
+        self.instance_watch.undeclare()
         for sid in list(self.sessions):
             self._stop(sid)
         self.token.undeclare()

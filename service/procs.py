@@ -1,0 +1,98 @@
+"""Real ``arcf-service`` and ``arcf-router`` processes on loopback free ports.
+
+For the integration tests, the benchmarks and ``arcf-loadtest --spawn-service``: each starts
+the real program as a subprocess, waits for its "ready" line and stops it with SIGTERM.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import re
+import signal
+import socket
+import subprocess
+import sys
+import urllib.request
+from pathlib import Path
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def worker_pids(pid: int) -> set[int]:
+    """Worker processes of the service: spawned children (not multiprocessing's tracker)."""
+    out: set[int] = set()
+    for task in Path(f"/proc/{pid}/task").glob("*"):
+        with contextlib.suppress(OSError):
+            out |= {int(p) for p in (task / "children").read_text().split()}
+    workers = set()
+    for child in out:
+        with contextlib.suppress(OSError):
+            if b"spawn_main" in Path(f"/proc/{child}/cmdline").read_bytes():
+                workers.add(child)
+    return workers
+
+
+class ServiceProcess:
+    """One ``arcf-service``: by default with its embedded router on a free port; with
+    ``connect``, a client-mode instance of a multi-instance deployment."""
+
+    def __init__(self, *extra: str, connect: str | None = None, workers: int = 2,
+                 quiet: bool = True) -> None:
+        if connect:
+            self.endpoint = connect
+            where = ["--mode", "client", "--connect", connect]
+        else:
+            self.endpoint = f"tcp/127.0.0.1:{free_port()}"
+            where = ["--listen", self.endpoint]
+        metrics_port = free_port()
+        self.metrics_url = f"http://127.0.0.1:{metrics_port}/metrics"
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "service.app", *where, "--workers", str(workers),
+             "--metrics-port", str(metrics_port), *extra],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE if quiet else None, text=True,
+            cwd=Path(__file__).resolve().parent.parent, env=dict(os.environ))
+        assert self.proc.stdout is not None
+        line = self.proc.stdout.readline()
+        if "ready" not in line:
+            self.proc.kill()
+            err = self.proc.stderr.read() if self.proc.stderr else ""
+            raise RuntimeError(f"service did not start: {line!r} {err}")
+        self.workers = worker_pids(self.proc.pid)
+
+    def metric(self, name: str) -> float:
+        """Sum of every series of a metric (all label values), scraped over HTTP."""
+        text = urllib.request.urlopen(self.metrics_url, timeout=5).read().decode()
+        pattern = rf"^{re.escape(name)}(?:\{{[^}}]*\}})?\s+([0-9.eE+-]+)$"
+        return sum(float(m) for m in re.findall(pattern, text, flags=re.M))
+
+    def stop(self) -> int:
+        self.proc.send_signal(signal.SIGTERM)
+        code = self.proc.wait(timeout=30)
+        return code
+
+
+
+
+class RouterProcess:
+    """A plain Zenoh router (``arcf-router``) on a free loopback port."""
+
+    def __init__(self) -> None:
+        self.endpoint = f"tcp/127.0.0.1:{free_port()}"
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "service.router", "--listen", self.endpoint],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+            cwd=Path(__file__).resolve().parent.parent)
+        assert self.proc.stdout is not None
+        line = self.proc.stdout.readline()
+        if "ready" not in line:
+            self.proc.kill()
+            raise RuntimeError(f"router did not start: {line!r}")
+
+    def stop(self) -> int:
+        self.proc.send_signal(signal.SIGTERM)
+        return self.proc.wait(timeout=30)
