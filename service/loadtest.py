@@ -221,6 +221,7 @@ def run_load(
     duration: float = 20.0,
     max_frames: int = 0,
     stagger: float = 0.2,
+    aligned: bool = False,
     loop: bool = False,
     in_flight: int = 0,
     metrics_url: str | None = None,
@@ -304,9 +305,19 @@ def run_load(
 
         ended_ns: dict[str, int] = {}
 
+        def phase(k: int) -> float:
+            """Where stream k's frames fall within the frame period. Independent drones'
+            cameras are not synchronised, so by default the phases are spread over the period
+            (a golden-ratio sequence: even for any number of streams). ``aligned`` puts every
+            frame of every stream at the same instant: the worst case, a synchronised fleet.
+            A stagger that is a multiple of the period would align them by accident."""
+            if aligned or fps <= 0:
+                return 0.0
+            return ((k * 0.6180339887498949) % 1.0) / fps - (k * stagger) % (1.0 / fps)
+
         def publisher(k: int) -> None:
             name, seq, data = plan[k]
-            time.sleep(k * stagger)
+            time.sleep(k * stagger + phase(k))
             t0 = time.monotonic()
             limit = (max_frames or None) if loop else len(data)
             i = 0
@@ -560,6 +571,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="closed loop: at most this many unanswered frames per stream "
                          "(with --fps 0: saturation without drops)")
     ap.add_argument("--stagger", type=float, default=0.2, help="seconds between stream starts")
+    ap.add_argument("--aligned", action="store_true",
+                    help="every stream's frames at the same instants (a synchronised fleet: "
+                         "the worst case); default: phases spread over the frame period")
     ap.add_argument("--out", default="loadtest", help="report basename (.json, .md, .png)")
     ap.add_argument("--no-offline", action="store_true",
                     help="skip the offline accuracy comparison")
@@ -595,7 +609,8 @@ def main(argv: list[str] | None = None) -> int:
             report = run_load(connect, seqs, streams=n,
                               sessions_per_stream=args.sessions_per_stream, preset=args.preset,
                               fps=args.fps, duration=args.duration, max_frames=args.frames,
-                              stagger=args.stagger, loop=args.loop, in_flight=args.in_flight,
+                              stagger=args.stagger, aligned=args.aligned, loop=args.loop,
+                              in_flight=args.in_flight,
                               metrics_url=metrics_url,
                               service_pid=service_pid, offline=not args.no_offline,
                               reference_seconds=args.reference_seconds, cache=cache)

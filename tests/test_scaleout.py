@@ -2,12 +2,13 @@
 
 Streams spread over all three; a SIGKILLed instance's streams are resumed by the survivors from
 their last published box, and no other stream notices; a fourth instance takes over its share
-without interrupting the rest.
+without interrupting the rest; a frozen instance (SIGSTOP) is found out by the Zenoh lease.
 """
 
 from __future__ import annotations
 
 import itertools
+import os
 import signal
 import threading
 import time
@@ -31,6 +32,7 @@ pytestmark = pytest.mark.skipif(not (data_root() / "uav123_10fps").is_dir(),
                                 reason="needs ../shared/data")
 
 FPS = 5.0
+LEASE_S = 1.5
 IDS = ["inst-a", "inst-b", "inst-c"]
 
 
@@ -57,7 +59,7 @@ def test_instances_share_streams_fail_over_and_rebalance() -> None:
     frames = [p.read_bytes() for p in seq.frames]
     streams = pick_streams()
     router = RouterProcess()
-    extra = ("--lease-ms", "2000")
+    extra = ("--lease-ms", str(int(LEASE_S * 1000)))
     with ThreadPoolExecutor(3) as pool:
         instances = dict(zip(IDS, pool.map(
             lambda i: ServiceProcess("--instance-id", i, *extra, connect=router.endpoint,
@@ -155,7 +157,33 @@ def test_instances_share_streams_fail_over_and_rebalance() -> None:
                                for r, t in results[n])
             for n in streams:  # every session keeps producing results
                 assert any(t > time.monotonic() - 1.0 for _, t in results[n]), n
-        print(f"failover {failover_s * 1e3:.0f} ms")
+
+        # 4. a hung instance (all its processes frozen) is detected by the Zenoh lease
+        live = [*survivors, "inst-d"]
+        frozen = max(live, key=lambda i: sum(owner(n, live) == i for n in streams))
+        stuck = [n for n in streams if owner(n, live) == frozen]
+        procs = instances | {"inst-d": newcomer}
+        pids = [procs[frozen].proc.pid, *procs[frozen].workers]
+        t_stop = time.monotonic()
+        for pid in pids:
+            os.kill(pid, signal.SIGSTOP)
+        try:
+            deadline = t_stop + LEASE_S + 8
+            taken: set[str] = set()
+            while time.monotonic() < deadline and len(taken) < len(stuck):
+                with lock:
+                    taken = {n for n in stuck if any(r.status.value == "resumed" and t > t_stop
+                                                     for r, t in results[n])}
+                time.sleep(0.05)
+            hang_s = time.monotonic() - t_stop
+            assert taken == set(stuck)
+            assert hang_s >= LEASE_S * 0.5  # not before the lease could expire
+        finally:
+            for pid in pids:
+                os.kill(pid, signal.SIGKILL)
+                os.kill(pid, signal.SIGCONT)
+            procs[frozen].proc.wait(timeout=10)
+        print(f"failover {failover_s * 1e3:.0f} ms, hang detected in {hang_s:.1f} s")
     finally:
         stop.set()
         client.close()
