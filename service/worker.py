@@ -332,7 +332,12 @@ class Worker:
             worked = True
             while worked:  # one frame per stream per round, commands in between: fair shares
                 while self.pending:
-                    self._apply(self.pending.popleft())
+                    t0 = time.perf_counter()
+                    cmd = self.pending.popleft()
+                    self._apply(cmd)
+                    if time.perf_counter() - t0 > 0.25:  # it stalls every stream of the worker
+                        log.warning("worker %d: command %s took %.0f ms", self.index,
+                                    cmd.get("op"), 1e3 * (time.perf_counter() - t0))
                 worked = False
                 for stream in list(self.streams.values()):
                     item = stream.inbox.pop()
@@ -346,7 +351,11 @@ class Worker:
                         log.exception("worker %d: unexpected error on stream %s", self.index,
                                       stream.stream_id)
                         self.metrics.ERRORS.labels(kind="internal").inc()
-                    busy_s += time.perf_counter() - t0
+                    spent = time.perf_counter() - t0
+                    busy_s += spent
+                    if spent > 0.5:
+                        log.warning("worker %d: a frame of stream %s took %.0f ms", self.index,
+                                    stream.stream_id, 1e3 * spent)
             now = time.monotonic()
             if now - t_window >= 1.0:
                 self.busy.set(busy_s / (now - t_window))
