@@ -94,7 +94,9 @@ def main() -> int:
                                          metrics_url=metrics_url, service_pid=proc.pid,
                                          offline=False, reference_seconds=0, progress=False)
                             r["passes"] = passes(r, args.p99_ms)
-                            r["per_stream"] = [{k: s[k] for k in ("sequence", "frames_sent", "results", "dropped_by_service", "latency_ms")} for s in r["per_stream"]]
+                            keep = ("sequence", "frames_sent", "results", "dropped_by_service",
+                                    "latency_ms")
+                            r["per_stream"] = [{k: s[k] for k in keep} for s in r["per_stream"]]
                             levels.append(r)
                             print(f"{preset} {fps:g} fps {seq.name}: {n} streams, "
                                   f"p99 {r['latency_ms']['p99']:.0f} ms, "
