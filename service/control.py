@@ -70,6 +70,9 @@ class ControlPlane:
         self.started = time.time()
         self.sessions: dict[str, SessionRecord] = {}
         self.lock = threading.Lock()
+        # Requests and rebalancing change what runs here; one at a time, or a rebalance could
+        # see a session admitted but not yet in the registry and stop it as withdrawn.
+        self.op_lock = threading.RLock()
 
     def _pump(self) -> None:
         """Hand workers' confirmations to the requests waiting for them."""
@@ -143,10 +146,16 @@ class ControlPlane:
         sessions of an instance that left (resuming from their last published box), hand over
         those a newcomer now owns. Called by the cluster whenever membership or the registry
         changed."""
-        from . import metrics
 
         if self.cluster is None:
             return
+        with self.op_lock:
+            self._rebalance()
+
+    def _rebalance(self) -> None:
+        from . import metrics
+
+        assert self.cluster is not None
         specs = {spec.session_id: spec for spec in self.cluster.all_specs()}
         with self.lock:
             local = dict(self.sessions)
@@ -242,15 +251,10 @@ class ControlPlane:
         if not self._mine(self._responder_key(request)):
             return None
         try:
-            if isinstance(request, StartRequest):
-                reply = self._start(request)
-            elif isinstance(request, ReinitRequest):
-                reply = self._reinit(request)
-            elif isinstance(request, StopRequest):
-                reply = self._stop(request)
-            else:
-                reply = self._status(request)
+            with self.op_lock:  # serialised with rebalancing (see __init__)
+                reply = self._dispatch(request)
         except _Refused as exc:
+
             metrics.CONTROL.labels(type=kind, outcome=exc.code).inc()
             return encode(ErrorMessage(code=exc.code, message=exc.message,
                                        request_id=request.request_id,
@@ -258,6 +262,17 @@ class ControlPlane:
                                        session_id=getattr(request, "session_id", None)))
         metrics.CONTROL.labels(type=kind, outcome="ok").inc()
         return encode(reply)
+
+    def _dispatch(self, request: Any) -> Any:
+        from schemas import ReinitRequest, StartRequest, StopRequest
+
+        if isinstance(request, StartRequest):
+            return self._start(request)
+        if isinstance(request, ReinitRequest):
+            return self._reinit(request)
+        if isinstance(request, StopRequest):
+            return self._stop(request)
+        return self._status(request)
 
     def _responder_key(self, request: Any) -> str:
         """What decides which instance answers: the stream, when the request names one or its
