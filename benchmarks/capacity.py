@@ -61,9 +61,12 @@ def main() -> int:
     ap.add_argument("--duration", type=float, default=15.0, help="seconds per load level")
     ap.add_argument("--max-streams", type=int, default=10)
     ap.add_argument("--p99-ms", type=float, default=100.0)
-    ap.add_argument("--saturation-sequences", default="wakeboard7,boat1")
+    ap.add_argument("--saturation-sequences", default="boat1,truck4_1,wakeboard7")
     ap.add_argument("--saturation-seconds", type=float, default=30.0)
-    ap.add_argument("--reference-seconds", type=float, default=20.0)
+    ap.add_argument("--saturation-window", type=int, default=60,
+                    help="frames of each sequence replayed (looped) at saturation, by the "
+                         "service and by the library reference alike")
+    ap.add_argument("--reference-seconds", type=float, default=30.0)
     ap.add_argument("--skip-capacity", action="store_true")
     ap.add_argument("--skip-saturation", action="store_true")
     ap.add_argument("--out", default="capacity.json")
@@ -117,6 +120,7 @@ def main() -> int:
                 for seq in sat:
                     r = run_load([endpoint], [seq], streams=2 * ncpu, preset=preset, fps=0,
                                  in_flight=1, duration=args.saturation_seconds, loop=True,
+                                 window=args.saturation_window,
                                  metrics_url=metrics_url, service_pid=proc.pid, offline=False,
                                  reference_seconds=args.reference_seconds, progress=False)
                     r.pop("per_stream")

@@ -220,6 +220,7 @@ def run_load(
     fps: float = 10.0,
     duration: float = 20.0,
     max_frames: int = 0,
+    window: int = 0,
     stagger: float = 0.2,
     aligned: bool = False,
     loop: bool = False,
@@ -237,7 +238,10 @@ def run_load(
 
     With ``loop`` a stream replays its sequence again from the start when it runs out (the
     sessions are re-initialised on the ground truth's first box at each wrap), so a run can last
-    longer than the sequence; accuracy is scored on the first pass. With ``in_flight`` > 0 each
+    longer than the sequence; accuracy is scored on the first pass. ``window`` replays only the
+    sequence's first frames (looped), so that the service and the library reference below
+    track exactly the same frames whatever their speed: a target's size, and with it the cost
+    of a frame, changes along a sequence. With ``in_flight`` > 0 each
     stream is a closed loop: frame i is sent once frame i - in_flight has all its results (or
     after 2 s), so several such streams per worker keep every worker busy without a single drop,
     which is how the service's saturation throughput is measured.
@@ -260,6 +264,7 @@ def run_load(
     for k in range(streams):
         seq = sequences[k % len(sequences)]
         n = len(seq) if not max_frames else min(len(seq), max_frames)
+        n = min(n, window) if window else n
         plan.append((f"load-{k}-{seq.name}", seq, [p.read_bytes() for p in seq.frames[:n]]))
     cache = cache if cache is not None else {}
     workers = reference_processes or os.cpu_count() or 1
@@ -565,6 +570,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--fps", type=float, default=10.0, help="per stream; 0 = as fast as possible")
     ap.add_argument("--duration", type=float, default=20.0, help="seconds per run (bound)")
     ap.add_argument("--frames", type=int, default=0, help="frames per stream (bound)")
+    ap.add_argument("--window", type=int, default=0,
+                    help="replay only the first N frames of each sequence (with --loop)")
     ap.add_argument("--loop", action="store_true",
                     help="replay sequences again when they end (until --duration/--frames)")
     ap.add_argument("--in-flight", type=int, default=0,
@@ -609,6 +616,7 @@ def main(argv: list[str] | None = None) -> int:
             report = run_load(connect, seqs, streams=n,
                               sessions_per_stream=args.sessions_per_stream, preset=args.preset,
                               fps=args.fps, duration=args.duration, max_frames=args.frames,
+                              window=args.window,
                               stagger=args.stagger, aligned=args.aligned, loop=args.loop,
                               in_flight=args.in_flight,
                               metrics_url=metrics_url,
