@@ -332,7 +332,9 @@ class ARCFTracker:
         tw = self._base_target_sz[1] * self._csf
         r, c = self._pos
         if self.params.sampling == "bacf":
-            th, tw = float(math.floor(th)), float(math.floor(tw))
+            # the release floors the size; a collapsed scale would give a 0-px side, which is
+            # no box at all (nothing can be re-initialised from it), so report at least 1 px
+            th, tw = float(max(math.floor(th), 1)), float(max(math.floor(tw), 1))
             return (c - math.floor(tw / 2), r - math.floor(th / 2), tw, th)
         return (c - (tw - 1) / 2, r - (th - 1) / 2, tw, th)
 

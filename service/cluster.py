@@ -27,7 +27,7 @@ import threading
 from collections.abc import Callable, Iterable
 from typing import Any
 
-from schemas import KeySpace, Result, SchemaError, SessionSpec, decode, encode
+from schemas import MAX_BOX_COORD, KeySpace, Result, SchemaError, SessionSpec, decode, encode
 
 log = logging.getLogger("arcf.service.cluster")
 
@@ -43,6 +43,14 @@ def owner(key: str, members: Iterable[Any]) -> Any:
     Every process computes the same owner from the same member set, and removing or adding a
     member moves only the keys it owned (or, for a new member, the keys it now wins)."""
     return max(members, key=lambda m: weight(key, m))
+
+
+def usable_box(box: Any) -> bool:
+    """A box a session can be resumed from: finite, positive size, within the contract's
+    coordinate range (a collapsed track can report a zero-height box; such a box is not kept,
+    and the session resumes from the last usable one)."""
+    return (len(box) == 4 and all(math.isfinite(v) for v in box) and box[2] > 0 and box[3] > 0
+            and max(abs(v) for v in box) <= MAX_BOX_COORD)
 
 
 class Cluster:
@@ -203,7 +211,7 @@ class Cluster:
         with self.lock:
             entries = [(s, self.last.get(s.session_id)) for s in self.specs.values()]
         for spec, last in entries:
-            if last is not None:
+            if last is not None and usable_box(last[1]):
                 spec = spec.model_copy(update={"last_seq": last[0], "last_box": last[1]})
             query.reply(self.keys.registry(spec.session_id), encode(spec))
 
@@ -212,7 +220,7 @@ class Cluster:
             r = decode(sample.payload.to_bytes(), expected=Result)
         except SchemaError:
             return
-        if r.status.value == "error" or not all(math.isfinite(v) for v in r.box):
+        if r.status.value == "error" or not usable_box(r.box):
             return
         with self.lock:
             if r.session_id not in self.specs:
