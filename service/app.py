@@ -169,7 +169,8 @@ class Service:
                 p.join(timeout=2)
             if p.pid:
                 metrics.mark_dead(p.pid)
-        self.responses.put(None)  # ends the control plane's pump thread
+        self.responses.put(None)  # ends the control plane's pump thread...
+        self.control.pump_thread.join(timeout=5)  # ...before its queue is closed under it
         for q in [*self.queues, self.responses]:
             q.close()
             q.join_thread()

@@ -65,7 +65,9 @@ class ControlPlane:
         self.timeout = timeout
         self._waiting: dict[str, tuple[threading.Event, list[Any]]] = {}
         if responses is not None:
-            threading.Thread(target=self._pump, name="arcf-control-pump", daemon=True).start()
+            self.pump_thread = threading.Thread(target=self._pump, name="arcf-control-pump",
+                                                daemon=True)
+            self.pump_thread.start()
         self.version = version
         self.started = time.time()
         self.sessions: dict[str, SessionRecord] = {}
@@ -79,7 +81,7 @@ class ControlPlane:
         while True:
             try:
                 item = self.responses.get()
-            except (EOFError, OSError, ValueError):  # queue closed at shutdown
+            except (EOFError, OSError, TypeError, ValueError):  # queue closed at shutdown
                 return
             if item is None:
                 return

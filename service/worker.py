@@ -164,7 +164,9 @@ class Worker:
         while True:
             try:
                 cmd = self.commands.get()
-            except (EOFError, OSError):  # the launcher is gone
+            except (EOFError, OSError, TypeError, ValueError):
+                # the launcher is gone, or this process is shutting down under the thread
+                # (a closed pipe surfaces as a TypeError from multiprocessing)
                 return
             self.pending.append(cmd)
             self.wake.set()
