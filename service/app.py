@@ -125,8 +125,10 @@ class Service:
                     self._replace_worker(k)
 
     def _replace_worker(self, k: int) -> None:
-        """Supervision: a dead worker is replaced at once; only its own sessions are lost, and
-        their streams are told so on their error keys (clients start them again)."""
+        """Supervision: a dead worker is replaced at once. Its sessions (their trackers lived in
+        that process) resume on a live worker from their last published box, like sessions of
+        a dead instance; their streams are told on their error keys, and the first result
+        after says ``resumed``."""
         import zenoh
 
         from schemas import ErrorMessage, encode
@@ -151,9 +153,10 @@ class Service:
                 self.keys.errors(rec.stream_id),
                 encode(ErrorMessage(code="internal", stream_id=rec.stream_id,
                                     session_id=rec.session_id,
-                                    message=f"worker {k} died; session {rec.session_id} was "
-                                    "lost, start it again")),
+                                    message=f"worker {k} died; session {rec.session_id} "
+                                    "resumes from its last published box")),
                 congestion_control=zenoh.CongestionControl.DROP)
+        self.cluster.request_rebalance()  # the registry still has them: they start again
 
     def close(self) -> None:
         from . import metrics
