@@ -115,6 +115,14 @@ class ErrorCode(str, Enum):
     DECODE_ERROR = "decode_error"
     OVERSIZED_PAYLOAD = "oversized_payload"
     NO_SESSION = "no_session"
+    #: A frame whose ``seq`` is not above the stream's last one (duplicate or out of order).
+    STALE_FRAME = "stale_frame"
+    #: A stream sending more frames per second than ``max_stream_fps``.
+    RATE_LIMITED = "rate_limited"
+    #: An image whose header declares more pixels than ``max_pixels`` (decompression bomb).
+    IMAGE_TOO_LARGE = "image_too_large"
+    #: A service-wide cap (e.g. ``max_sessions``) would be exceeded.
+    LIMIT_EXCEEDED = "limit_exceeded"
     INTERNAL = "internal"
 
 

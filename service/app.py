@@ -195,6 +195,11 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--prefix")
     ap.add_argument("--frame-queue", type=int, help="newest frames kept per stream")
     ap.add_argument("--max-payload", type=int, help="largest frame payload in bytes")
+    ap.add_argument("--max-pixels", type=int,
+                    help="largest image in pixels, from its header (decompression bombs)")
+    ap.add_argument("--max-stream-fps", type=float, help="most frames/s accepted per stream")
+    ap.add_argument("--max-sessions", type=int, help="most sessions on this instance")
+    ap.add_argument("--max-sessions-per-stream", type=int, help="most sessions on one stream")
     ap.add_argument("--metrics-port", type=int, help="Prometheus port (0: any, -1: off)")
     ap.add_argument("--metrics-host")
     ap.add_argument("--lease-ms", type=int, help="Zenoh lease: how fast a hung peer is noticed")
@@ -212,6 +217,8 @@ def main(argv: list[str] | None = None) -> int:
             connect=tuple(args.connect) if args.connect else None,
             zenoh_config=args.zenoh_config, workers=args.workers, prefix=args.prefix,
             frame_queue=args.frame_queue, max_payload=args.max_payload,
+            max_pixels=args.max_pixels, max_stream_fps=args.max_stream_fps,
+            max_sessions=args.max_sessions, max_sessions_per_stream=args.max_sessions_per_stream,
             metrics_port=args.metrics_port, metrics_host=args.metrics_host,
             lease_ms=args.lease_ms, instance_id=args.instance_id)
     except ValueError as exc:

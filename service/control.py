@@ -203,9 +203,12 @@ class ControlPlane:
         with self.lock:
             if sid in self.sessions:
                 raise _Refused("invalid_request", f"session {sid!r} already exists")
+            if len(self.sessions) >= self.settings.max_sessions:
+                raise _Refused("limit_exceeded", f"this instance already runs "
+                               f"{len(self.sessions)} sessions (max_sessions)")
             n = sum(1 for r in self.sessions.values() if r.stream_id == stream_id)
             if n >= self.settings.max_sessions_per_stream:
-                raise _Refused("invalid_request", f"stream {stream_id!r} already has {n} "
+                raise _Refused("limit_exceeded", f"stream {stream_id!r} already has {n} "
                                "sessions (max_sessions_per_stream)")
             same = [r.worker for r in self.sessions.values() if r.stream_id == stream_id]
             if same:

@@ -29,6 +29,14 @@ class ServiceSettings:
     max_payload: int = 8 * 1024 * 1024
     #: Largest number of sessions on one stream.
     max_sessions_per_stream: int = 16
+    #: Largest number of sessions on this instance.
+    max_sessions: int = 256
+    #: Largest image, in pixels, as declared by its header (checked before decoding: a
+    #: decompression bomb is refused without allocating anything). 8K UHD is 33.2 MP.
+    max_pixels: int = 40_000_000
+    #: Most frames per second accepted from one stream (sustained; one second of burst); the
+    #: excess is refused and counted, so one flooding station cannot starve the others.
+    max_stream_fps: float = 60.0
     metrics_host: str = "127.0.0.1"
     #: Prometheus endpoint port (0: pick a free port; negative: disabled).
     metrics_port: int = 9464
@@ -47,6 +55,12 @@ class ServiceSettings:
             raise ValueError("frame_queue must be >= 1")
         if self.max_payload < 1024:
             raise ValueError("max_payload must be at least 1024 bytes")
+        if self.max_sessions < 1 or self.max_sessions_per_stream < 1:
+            raise ValueError("max_sessions and max_sessions_per_stream must be >= 1")
+        if self.max_pixels < 1:
+            raise ValueError("max_pixels must be >= 1")
+        if not self.max_stream_fps > 0:
+            raise ValueError("max_stream_fps must be > 0")
         if any(c in self.prefix for c in "*$?#") or self.prefix.strip("/") != self.prefix:
             raise ValueError(f"invalid key-expression prefix {self.prefix!r}")
 
@@ -74,6 +88,8 @@ class ServiceSettings:
                 values[name] = raw.lower() in ("1", "true", "yes")
             elif isinstance(current, int):
                 values[name] = int(raw)
+            elif isinstance(current, float):
+                values[name] = float(raw)
             elif name == "zenoh_config":
                 values[name] = Path(raw)
             else:

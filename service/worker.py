@@ -23,6 +23,8 @@ import numpy as np
 from arcf import ARCFError, create_tracker
 from schemas import ErrorMessage, Frame, KeySpace, Result, SchemaError, decode, encode
 
+from .imagecheck import image_size
+
 log = logging.getLogger("arcf.service.worker")
 
 
@@ -69,6 +71,24 @@ class _Stream:
     errors: Any
     sessions: dict[str, _Session] = field(default_factory=dict)
     last_seq: int | None = None
+    #: token bucket of the per-stream frame rate limit: (tokens, last refill, monotonic s)
+    tokens: float = -1.0
+    refilled: float = 0.0
+    #: when each kind of error notice was last put on the stream's error key
+    noticed: dict[str, float] = field(default_factory=dict)
+
+    def take_token(self, rate: float) -> bool:
+        """One frame's worth of the stream's rate budget: ``rate`` per second, bursts of one
+        second's worth."""
+        now = time.monotonic()
+        if self.tokens < 0:
+            self.tokens, self.refilled = rate, now
+        self.tokens = min(rate, self.tokens + (now - self.refilled) * rate)
+        self.refilled = now
+        if self.tokens >= 1.0:
+            self.tokens -= 1.0
+            return True
+        return False
 
 
 def _warm_up() -> None:
@@ -90,21 +110,35 @@ def _warm_up() -> None:
             log.debug("warm-up of %s skipped", name, exc_info=True)
 
 
-def decode_image(frame: Any) -> np.ndarray | None:
-    """The frame's pixels as uint8 BGR or gray, or None if the payload does not decode."""
+def decode_image(frame: Any, max_pixels: int | None = None
+                 ) -> tuple[np.ndarray | None, tuple[str, str] | None]:
+    """The frame's pixels as uint8 BGR or gray, or (None, (error code, message)).
+
+    Compressed images are sized from their header first: more than ``max_pixels`` is refused
+    before ``cv2.imdecode`` allocates anything (a decompression bomb costs nothing)."""
     data = np.frombuffer(frame.payload, dtype=np.uint8)
     if frame.encoding in ("jpeg", "png"):
+        if max_pixels is not None:
+            size = image_size(frame.payload)
+            if size is None:
+                return None, ("decode_error", f"not a readable {frame.encoding} header")
+            if size[0] * size[1] > max_pixels:
+                return None, ("image_too_large", f"{frame.encoding} declares {size[0]}x{size[1]}"
+                              f" = {size[0] * size[1]} pixels; the limit is {max_pixels}")
         image = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
         if image is None:
-            return None
+            return None, None
         if image.dtype != np.uint8:
             image = cv2.convertScaleAbs(image, alpha=255.0 / max(float(image.max()), 1.0))
         if image.ndim == 3 and image.shape[2] == 4:
             image = cv2.cvtColor(image, cv2.COLOR_BGRA2BGR)
-        return image
+        return image, None
+    if max_pixels is not None and frame.width * frame.height > max_pixels:
+        return None, ("image_too_large", f"{frame.width}x{frame.height} exceeds {max_pixels} "
+                      "pixels")
     channels = 3 if frame.encoding == "bgr8" else 1
     image = data.reshape(frame.height, frame.width, channels)
-    return image if channels == 3 else image[..., 0]
+    return (image if channels == 3 else image[..., 0]), None
 
 
 class Worker:
@@ -245,8 +279,15 @@ class Worker:
             self.metrics.STREAMS.dec()
 
     # ------------------------------------------------------------------ frames
-    def _error(self, stream: _Stream, code: str, message: str, seq: int | None) -> None:
+    def _error(self, stream: _Stream, code: str, message: str, seq: int | None,
+               every_s: float = 0.0) -> None:
+        """Count an error and tell the stream; with ``every_s``, at most one notice per that
+        many seconds (a flood of bad frames must not become a flood of notices)."""
         self.metrics.ERRORS.labels(kind=code).inc()
+        now = time.monotonic()
+        if every_s and now - stream.noticed.get(code, -1e9) < every_s:
+            return
+        stream.noticed[code] = now
         stream.errors.put(encode(ErrorMessage(code=code, message=message,
                                               stream_id=stream.stream_id, frame_seq=seq)))
 
@@ -262,15 +303,26 @@ class Worker:
             self._error(stream, "invalid_request",
                         f"frame says stream {frame.stream_id!r} on {stream.stream_id!r}", frame.seq)
             return
+        if stream.last_seq is not None and frame.seq <= stream.last_seq:
+            # duplicate or out of order: tracking it would move the trackers back in time
+            self._error(stream, "stale_frame", f"frame {frame.seq} is not after frame "
+                        f"{stream.last_seq}; dropped", frame.seq, every_s=1.0)
+            return
+        if not stream.take_token(self.settings.max_stream_fps):
+            self._error(stream, "rate_limited", f"stream {stream.stream_id!r} exceeds "
+                        f"{self.settings.max_stream_fps:g} frames/s; frame {frame.seq} refused",
+                        frame.seq, every_s=1.0)
+            return
         if stream.last_seq is not None and frame.seq > stream.last_seq + 1:
             m.FRAMES_DROPPED.inc(frame.seq - stream.last_seq - 1)
-        stream.last_seq = frame.seq if stream.last_seq is None else max(stream.last_seq, frame.seq)
+        stream.last_seq = frame.seq
         t0 = time.perf_counter()
-        image = decode_image(frame)
+        image, problem = decode_image(frame, self.settings.max_pixels)
         decode_s = time.perf_counter() - t0
         m.DECODE.observe(decode_s)
         if image is None:
-            self._error(stream, "decode_error", f"cannot decode {frame.encoding} frame", frame.seq)
+            code, text = problem or ("decode_error", f"cannot decode {frame.encoding} frame")
+            self._error(stream, code, text, frame.seq)
         else:
             m.FRAMES_PROCESSED.inc()
         for s in list(stream.sessions.values()):
@@ -278,7 +330,7 @@ class Worker:
             status, message, r = "tracking", None, None
             t1 = time.perf_counter()
             if image is None:
-                status, message = "error", "frame could not be decoded"
+                status, message = "error", (problem or ("", "frame could not be decoded"))[1]
             elif s.pending_box is not None and (
                 s.pending_seq is None or frame.seq >= s.pending_seq
             ):

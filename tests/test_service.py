@@ -350,3 +350,63 @@ def test_signals_stop_everything(sig) -> None:
     for pid in workers:
         assert not Path(f"/proc/{pid}").exists() or "zombie" in Path(
             f"/proc/{pid}/status").read_text().lower()
+
+
+def test_limits_stale_frames_and_bombs_are_refused_counted_and_harmless(frames) -> None:
+    """Each refusal is a counted error with a clear code, and the sessions go on."""
+    from test_imagecheck import png_bomb
+
+    seq, data = frames
+    keys = KeySpace()
+    svc = _Service("--max-stream-fps", "4", "--max-sessions", "2", "--max-pixels", "2000000")
+    try:
+        with TrackingClient(connect=[svc.endpoint]) as client:
+            errors: list = []
+            sub = client.session.declare_subscriber(keys.errors("lim"),
+                                                    lambda s: errors.append(s))
+            results = client.results("lim")
+            client.start("lim", seq.init_box, preset="bacf", frame_seq=0)
+            client.start("lim-2", seq.init_box, preset="bacf")
+            with pytest.raises(ServiceError) as refused:  # max_sessions (2 per instance)
+                client.start("lim-3", seq.init_box, preset="bacf")
+            assert refused.value.code == "limit_exceeded"
+            assert "max_sessions" in str(refused.value)
+            client.publish_frame("lim", data=data[0], seq=0)
+            assert [r.status for r in _collect(results, 1, timeout=30)] == ["initialized"]
+            time.sleep(1.0)  # refill the rate budget
+            # a decompression bomb: refused from its header, an error result, no decoding
+            client.publish_frame("lim", data=png_bomb(4000, 4000), encoding="png", seq=1)
+            (bomb,) = _collect(results, 1, timeout=30)
+            assert bomb.status == "error" and "pixels" in (bomb.message or "")
+            # a duplicate and an out-of-order frame: refused, not tracked
+            client.publish_frame("lim", data=data[1], seq=1)
+            client.publish_frame("lim", data=data[0], seq=0)
+            time.sleep(1.0)
+            client.publish_frame("lim", data=data[2], seq=2)
+            (ok,) = _collect(results, 1, timeout=30)
+            assert ok.frame_seq == 2 and ok.status == "tracking"
+            # a flood above max_stream_fps: the excess is refused, and tracking goes on
+            time.sleep(1.5)
+            for i in range(3, 23):
+                client.publish_frame("lim", data=data[i], seq=i)
+                time.sleep(0.01)
+            got = _collect(results, 20, timeout=5)
+            assert 1 <= len(got) <= 8  # within one second's budget (4) and its refill
+            assert all(r.status == "tracking" for r in got)
+            time.sleep(0.5)
+            sub.undeclare()
+        codes = [decode_error_code(s) for s in errors]
+        for code in ("image_too_large", "stale_frame", "rate_limited"):
+            assert code in codes, codes
+        # two stale frames and the bomb, then the flood's refusals: each refused frame is one
+        # of those without a result (the others were dropped for the newest, and counted)
+        refused = svc.metric("arcf_errors_total") - 3
+        assert 1 <= refused <= 20 - len(got)
+    finally:
+        assert svc.stop() == 0
+
+
+def decode_error_code(sample) -> str:
+    from schemas import ErrorMessage, decode
+
+    return decode(sample.payload.to_bytes(), expected=ErrorMessage).code.value

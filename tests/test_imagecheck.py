@@ -1,0 +1,75 @@
+"""Image sizes read from headers, and decompression bombs refused before decoding."""
+
+from __future__ import annotations
+
+import struct
+import time
+import zlib
+from types import SimpleNamespace
+
+import cv2
+import numpy as np
+import pytest
+
+from service.imagecheck import image_size
+from service.worker import decode_image
+
+
+def png_bomb(width: int, height: int) -> bytes:
+    """A valid grayscale PNG of width x height zeros: tiny on the wire, huge decoded."""
+    def chunk(kind: bytes, body: bytes) -> bytes:
+        return (struct.pack(">I", len(body)) + kind + body
+                + struct.pack(">I", zlib.crc32(kind + body) & 0xFFFFFFFF))
+    comp = zlib.compressobj(9)
+    row = b"\x00" * (width + 1)  # filter byte + pixels
+    idat = b"".join(comp.compress(row) for _ in range(height)) + comp.flush()
+    ihdr = struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0)
+    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", idat)
+            + chunk(b"IEND", b""))
+
+
+def frame(payload: bytes, encoding: str) -> SimpleNamespace:
+    return SimpleNamespace(payload=payload, encoding=encoding, width=None, height=None)
+
+
+@pytest.mark.parametrize("params", [[], [cv2.IMWRITE_JPEG_PROGRESSIVE, 1]])
+def test_jpeg_sizes_baseline_and_progressive(params: list[int]) -> None:
+    image = np.random.default_rng(0).integers(0, 255, (37, 53, 3), dtype=np.uint8)
+    ok, buf = cv2.imencode(".jpg", image, params)
+    assert ok and image_size(buf.tobytes()) == (53, 37)
+
+
+def test_png_size_and_a_real_dataset_frame(tmp_path) -> None:
+    ok, buf = cv2.imencode(".png", np.zeros((21, 34), np.uint8))
+    assert ok and image_size(buf.tobytes()) == (34, 21)
+    from arcf.data import data_root
+
+    frames = sorted((data_root() / "uav123_10fps").rglob("*.jpg"))[:1]
+    if frames:
+        assert image_size(frames[0].read_bytes()) == (1280, 720)
+
+
+@pytest.mark.parametrize("junk", [b"", b"\xff\xd8", b"\xff\xd8\xff\xe0\x00", b"GIF89a....",
+                                  b"\x89PNG\r\n\x1a\n\x00\x00", b"\xff\xd8\x00\x00\x00\x00"])
+def test_unreadable_headers_give_none(junk: bytes) -> None:
+    assert image_size(junk) is None
+
+
+def test_a_decompression_bomb_is_refused_without_decoding() -> None:
+    bomb = png_bomb(10000, 10000)  # 100 MB of pixels in a ~100 KB file
+    assert len(bomb) < 200_000 and image_size(bomb) == (10000, 10000)
+    t0 = time.perf_counter()
+    image, problem = decode_image(frame(bomb, "png"), max_pixels=40_000_000)
+    assert image is None and problem is not None and problem[0] == "image_too_large"
+    assert "10000x10000" in problem[1]
+    assert time.perf_counter() - t0 < 0.05  # refused from the header, not decoded
+
+
+def test_images_within_the_limit_decode() -> None:
+    _, buf = cv2.imencode(".jpg", np.full((40, 60, 3), 128, np.uint8))
+    image, problem = decode_image(frame(buf.tobytes(), "jpeg"), max_pixels=2400)
+    assert problem is None and image is not None and image.shape == (40, 60, 3)
+    image, problem = decode_image(frame(buf.tobytes(), "jpeg"), max_pixels=2399)
+    assert image is None and problem is not None and problem[0] == "image_too_large"
+    raw = SimpleNamespace(payload=bytes(6000 * 3), encoding="bgr8", width=100, height=60)
+    assert decode_image(raw, max_pixels=5999)[1][0] == "image_too_large"
