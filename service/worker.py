@@ -125,7 +125,11 @@ def decode_image(frame: Any, max_pixels: int | None = None
             if size[0] * size[1] > max_pixels:
                 return None, ("image_too_large", f"{frame.encoding} declares {size[0]}x{size[1]}"
                               f" = {size[0] * size[1]} pixels; the limit is {max_pixels}")
-        image = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+        try:
+            image = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+        except cv2.error as exc:  # e.g. an empty buffer: OpenCV asserts instead of failing
+            return None, ("decode_error", f"cannot decode {frame.encoding} frame: "
+                          f"{str(exc).strip().splitlines()[-1]}")
         if image is None:
             return None, None
         if image.dtype != np.uint8:
