@@ -159,6 +159,10 @@ class ResultStatus(str, Enum):
     #: Taken over by another worker or instance after a failure or a rebalance, and started
     #: again from the last published box.
     RESUMED = "resumed"
+    #: The last result of a session this instance no longer runs: the service is shutting
+    #: down, or the instance lost its place in the cluster (another instance resumes it if one
+    #: is live). ``frame_seq`` is the session's last frame.
+    STOPPED = "stopped"
     ERROR = "error"
 
 

@@ -161,10 +161,11 @@ class Service:
     def close(self) -> None:
         from . import metrics
 
-        # leave the cluster first: the survivors take this instance's streams over while its
-        # workers wind down (the registry entries stay, so the sessions resume there)
-        self.cluster.close()
+        # Stop intake, then leave the cluster at once: the survivors take this instance's
+        # streams over (the registry entries stay, so the sessions resume there) while the
+        # workers finish the frames they hold and send each session's final status.
         self.worker_stop.set()
+        self.cluster.close()
         for p in self.procs:
             p.join(timeout=5)
             if p.is_alive():

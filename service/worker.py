@@ -193,9 +193,46 @@ class Worker:
             return
         log.warning("worker %d: instance token lost; dropping %d sessions", self.index,
                     len(self.sessions))
+        self._final_statuses(
+            "the service is shutting down; another instance resumes the session if one is live"
+            if self.stop.is_set() else
+            "this instance lost its place in the cluster; another instance resumes the session "
+            "if one is live")
         for sid in list(self.sessions):
             self._stop(sid)
         self.responses.put((None, False, f"fenced:{self.index}"))
+
+    def _final_statuses(self, reason: str) -> None:
+        """One last result per session, status ``stopped``: a ground station learns that its
+        session ended, and why, instead of watching results stop."""
+        now = time.time_ns()
+        nan = float("nan")
+        for s in self.sessions.values():
+            try:
+                s.publisher.put(encode(Result(
+                    session_id=s.session_id, stream_id=s.stream_id,
+                    frame_seq=s.last_seq if s.last_seq is not None else 0, capture_ts_ns=now,
+                    box=[nan, nan, nan, nan], peak=nan, psr=nan, aberrance=nan,
+                    aberrance_release=nan, scale=nan, status="stopped", dropped=0,
+                    message=reason, received_ts_ns=now, decode_s=0.0, track_s=0.0,
+                    published_ts_ns=now)))
+            except Exception:  # shutting down: a failed notice must not block the rest
+                log.debug("final status of %s not sent", s.session_id, exc_info=True)
+
+    def _drain(self) -> None:
+        """On shutdown: finish the frames already received (at most ``frame_queue`` per
+        stream, so the time is bounded), then send every session's final status."""
+        for stream in list(self.streams.values()):
+            for _ in range(len(stream.inbox.frames)):
+                item = stream.inbox.pop()
+                if item is None:
+                    break
+                try:
+                    self._process(stream, *item)
+                except Exception:
+                    log.exception("worker %d: error while draining %s", self.index,
+                                  stream.stream_id)
+        self._final_statuses("the service is shutting down")
 
     def _pump_commands(self) -> None:
         """Move commands from the control plane's queue into the loop's wake-up."""
@@ -418,6 +455,8 @@ class Worker:
             if now - t_window >= 1.0:
                 self.busy.set(busy_s / (now - t_window))
                 busy_s, t_window = 0.0, now
+        if self.stop.is_set():
+            self._drain()
 
     def close(self) -> None:
         self.instance_watch.undeclare()

@@ -410,3 +410,22 @@ def decode_error_code(sample) -> str:
     from schemas import ErrorMessage, decode
 
     return decode(sample.payload.to_bytes(), expected=ErrorMessage).code.value
+
+
+def test_sigterm_finishes_in_flight_frames_and_sends_final_statuses(frames) -> None:
+    seq, data = frames
+    svc = _Service()
+    with TrackingClient(connect=[svc.endpoint]) as client:
+        results = client.results("bye")
+        client.start("bye", seq.init_box, preset="bacf", frame_seq=0)
+        client.start("bye", seq.init_box, preset="arcf-h", frame_seq=0)
+        got = _lockstep(client, {"bye": (results, 2)}, data[:3])["bye"]
+        assert len(got) == 6
+        t0 = time.monotonic()
+        svc.proc.send_signal(signal.SIGTERM)
+        assert svc.proc.wait(timeout=30) == 0
+        stopped_in = time.monotonic() - t0
+        final = _collect(results, 2, timeout=5)
+    assert stopped_in < 10  # bounded
+    assert len(final) == 2 and {r.status for r in final} == {"stopped"}
+    assert all(r.frame_seq == 2 and "shutting down" in (r.message or "") for r in final)
