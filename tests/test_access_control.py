@@ -1,0 +1,135 @@
+"""Access control on loopback: Zenoh's mutual TLS and ACL, configured from the deployment's own
+example files (deploy/zenoh/router-tls-acl.json5 and client-tls.json5, with only certificate
+paths and endpoints changed). An authorised ground station tracks through a real service; a
+station with a valid certificate but no rights is refused both control and frame publishing;
+a client without a certificate cannot connect at all."""
+
+from __future__ import annotations
+
+import json
+import queue
+import shutil
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+import zenoh
+from service_harness import ServiceProcess, free_port
+
+from arcf.data import data_root
+from arcf.eval import load_dataset
+from schemas import Status, StatusRequest, decode, encode
+from service.client import TrackingClient
+
+ROOT = Path(__file__).resolve().parent.parent
+DEPLOY = ROOT / "deploy" / "zenoh"
+
+pytestmark = [
+    pytest.mark.skipif(shutil.which("openssl") is None, reason="needs openssl"),
+    pytest.mark.skipif(not (data_root() / "uav123_10fps").is_dir(), reason="needs ../shared/data"),
+]
+
+
+def make_certs(d: Path, names: list[str]) -> None:
+    """A throwaway CA and one certificate per common name (SAN localhost / 127.0.0.1)."""
+    def run(*args: str) -> None:
+        subprocess.run(["openssl", *args], cwd=d, check=True, capture_output=True)
+    run("req", "-x509", "-newkey", "rsa:2048", "-nodes", "-keyout", "ca-key.pem", "-out",
+        "ca.pem", "-days", "2", "-subj", "/CN=arcf-test-ca")
+    for cn in names:
+        (d / f"{cn}.ext").write_text("subjectAltName=DNS:localhost,IP:127.0.0.1\n"
+                                     "extendedKeyUsage=serverAuth,clientAuth\n")
+        run("req", "-newkey", "rsa:2048", "-nodes", "-keyout", f"{cn}-key.pem", "-out",
+            f"{cn}.csr", "-subj", f"/CN={cn}")
+        run("x509", "-req", "-in", f"{cn}.csr", "-CA", "ca.pem", "-CAkey", "ca-key.pem",
+            "-CAcreateserial", "-out", f"{cn}.pem", "-days", "2", "-extfile", f"{cn}.ext")
+
+
+def peer_config(d: Path, cn: str | None, endpoint: str) -> Path:
+    """deploy/zenoh/client-tls.json5 with this peer's certificate (none: no client cert)."""
+    text = (DEPLOY / "client-tls.json5").read_text()
+    text = text.replace("tls/router.example.org:7447", endpoint)
+    text = text.replace("/certs/ca.pem", str(d / "ca.pem"))
+    if cn is None:
+        text = "\n".join(line for line in text.splitlines() if "connect_" not in line)
+    else:
+        text = text.replace("/certs/peer.pem", str(d / f"{cn}.pem"))
+        text = text.replace("/certs/peer-key.pem", str(d / f"{cn}-key.pem"))
+    path = d / f"peer-{cn}.json5"
+    path.write_text(text)
+    return path
+
+
+def test_only_authorised_stations_track(tmp_path: Path) -> None:
+    make_certs(tmp_path, ["router", "arcf-service-1", "station-01", "intruder"])
+    port = free_port()
+    endpoint = f"tls/localhost:{port}"
+    conf = zenoh.Config.from_file(str(DEPLOY / "router-tls-acl.json5"))
+    conf.insert_json5("listen/endpoints", json.dumps([f"tls/127.0.0.1:{port}"]))
+    for key, name in (("root_ca_certificate", "ca.pem"), ("listen_certificate", "router.pem"),
+                      ("listen_private_key", "router-key.pem")):
+        conf.insert_json5(f"transport/link/tls/{key}", json.dumps(str(tmp_path / name)))
+    seq = load_dataset("uav123_10fps", sequences=["wakeboard7"])[0]
+    data = [p.read_bytes() for p in seq.frames[:4]]
+    with zenoh.open(conf):
+        svc = ServiceProcess("--zenoh-config",
+                             str(peer_config(tmp_path, "arcf-service-1", endpoint)),
+                             connect=endpoint, workers=1)
+        try:
+            station = zenoh.open(zenoh.Config.from_file(
+                str(peer_config(tmp_path, "station-01", endpoint))))
+            intruder = zenoh.open(zenoh.Config.from_file(
+                str(peer_config(tmp_path, "intruder", endpoint))))
+            # a second unauthorised peer listens and poses as the service (a separate session:
+            # a session's own queryable would answer its own queries locally)
+            impostor = zenoh.open(zenoh.Config.from_file(
+                str(peer_config(tmp_path, "intruder", endpoint))))
+            snooped: list[str] = []
+            snoops = [impostor.declare_subscriber(k, lambda s: snooped.append(str(s.key_expr)))
+                      for k in ("arcf/v1/**", "arcf/v1/streams/cam/frames",
+                                "arcf/v1/streams/cam/sessions/*/results")]
+            spoof = impostor.declare_queryable(
+                "arcf/v1/control", lambda q: q.reply(q.key_expr, b"spoofed"))
+            time.sleep(0.3)
+            with TrackingClient(session=station) as good, TrackingClient(session=intruder) as bad:
+                results = good.results("cam")
+                ack = good.start("cam", seq.init_box, preset="bacf", frame_seq=0)
+                replies = [r.ok.payload.to_bytes() for r in station.get(
+                    "arcf/v1/control", payload=encode(StatusRequest(request_id="r1")),
+                    target=zenoh.QueryTarget.ALL, timeout=2.0) if r.ok is not None]
+                assert replies and all(isinstance(decode(r), Status) for r in replies)
+                # the intruder can neither control sessions...
+                with pytest.raises(TimeoutError):
+                    bad.start("cam-x", seq.init_box, preset="bacf", timeout=1.0)
+                with pytest.raises(TimeoutError):
+                    bad.stop(ack.session_id, timeout=1.0)
+                # ...nor inject frames into a tracked stream, nor forge its results
+                bad.publish_frame("cam", data=data[3], seq=1000)
+                got = []
+                for i, d in enumerate(data):
+                    good.publish_frame("cam", data=d, seq=i)
+                    got.append(results.get(timeout=10))
+                forged = got[-1].model_copy(update={"frame_seq": 999})
+                intruder.put(good.keys.results("cam", ack.session_id), encode(forged))
+                time.sleep(0.5)
+                assert [r.frame_seq for r in got] == [0, 1, 2, 3]
+                assert [r.status.value for r in got] == ["initialized"] + ["tracking"] * 3
+                with pytest.raises(queue.Empty):  # nothing forged or injected arrived
+                    results.get(timeout=0.5)
+                good.stop(ack.session_id)
+                results.close()
+                assert svc.metric("arcf_frames_received_total") == 4
+            # ...nor read anyone's video or results
+            assert snooped == []
+            for sub in snoops:
+                sub.undeclare()
+            spoof.undeclare()
+            impostor.close()
+            station.close()
+            intruder.close()
+        finally:
+            assert svc.stop() == 0
+        # and without a client certificate, no connection at all (mutual TLS)
+        with pytest.raises(zenoh.ZError):
+            zenoh.open(zenoh.Config.from_file(str(peer_config(tmp_path, None, endpoint))))
