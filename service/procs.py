@@ -13,6 +13,7 @@ import signal
 import socket
 import subprocess
 import sys
+import tempfile
 import urllib.request
 from pathlib import Path
 
@@ -51,18 +52,29 @@ class ServiceProcess:
             where = ["--listen", self.endpoint]
         metrics_port = free_port()
         self.metrics_url = f"http://127.0.0.1:{metrics_port}/metrics"
+        # the log goes to a file, not a pipe: nobody reads a pipe during a long run, and a
+        # full pipe would block the service's logging threads (and with them the service)
+        self._log = tempfile.TemporaryFile(mode="w+") if quiet else None  # noqa: SIM115
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "service.app", *where, "--workers", str(workers),
              "--metrics-port", str(metrics_port), *extra],
-            stdout=subprocess.PIPE, stderr=subprocess.PIPE if quiet else None, text=True,
+            stdout=subprocess.PIPE, stderr=self._log, text=True,
             cwd=Path(__file__).resolve().parent.parent, env=dict(os.environ))
         assert self.proc.stdout is not None
         line = self.proc.stdout.readline()
         if "ready" not in line:
             self.proc.kill()
-            err = self.proc.stderr.read() if self.proc.stderr else ""
-            raise RuntimeError(f"service did not start: {line!r} {err}")
+            self.proc.wait(timeout=10)
+            raise RuntimeError(f"service did not start: {line!r} {self.log()}")
         self.workers = worker_pids(self.proc.pid)
+
+    def log(self) -> str:
+        """What the service wrote to stderr so far (empty unless ``quiet``)."""
+        if self._log is None:
+            return ""
+        self._log.flush()
+        self._log.seek(0)
+        return self._log.read()
 
     def metric(self, name: str) -> float:
         """Sum of every series of a metric (all label values), scraped over HTTP."""
@@ -73,6 +85,11 @@ class ServiceProcess:
     def stop(self) -> int:
         self.proc.send_signal(signal.SIGTERM)
         code = self.proc.wait(timeout=30)
+        if self.proc.stdout is not None:
+            self.proc.stdout.close()
+        if self._log is not None:
+            self._log.close()
+            self._log = None
         return code
 
 
