@@ -4,9 +4,9 @@ Spawns a service (one worker per CPU) on loopback, measures its capacity in the 
 (streams of one sequence added one at a time until p99 >= 100 ms or a frame drops), then offers
 three times as many streams, then falls back to capacity. Reports per phase: offered and
 processed frames/s, the share of frames dropped (oldest first) and counted, the latency of the
-processed frames (and its first and second half, to show it does not grow), the service's memory
-(PSS of all its processes, trend in MB/min), the time to recover once the load falls, and the
-frame ledger (every frame answered or counted as dropped).
+processed frames (and its first and second half, to show it does not grow), the service's
+memory (anonymous memory of all its processes, trend in MB/min), the time to recover once the
+load falls, and the frame ledger (every frame answered or counted as dropped).
 
     python benchmarks/overload.py                                   # ~4 min per case
     python benchmarks/overload.py --presets arcf-h --fps 10 --sequences wakeboard7 --phase 60
@@ -77,8 +77,49 @@ def main() -> int:
                 r["minutes"] = (time.monotonic() - t0) / 60
                 out["runs"].append(r)
                 Path(args.out).write_text(json.dumps(out, indent=1, default=float))
+                if "timeline" in r:
+                    stem = Path(args.out).with_suffix("")
+                    plot(r, Path(f"{stem}-{preset}-{fps:g}fps-{seq.name}.png"))
     print(markdown(out))
     return 0
+
+
+def plot(r: dict[str, Any], path: Path) -> None:
+    """Streams offered, latency of processed frames, share dropped and memory, per second."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    tl = r["timeline"]
+    t = [row["t"] for row in tl]
+    fig, axes = plt.subplots(3, 1, figsize=(7, 6), sharex=True)
+    ax = axes[0]
+    ax.step(t, [row["streams"] for row in tl], where="post", color="k", label="streams")
+    ax.set_ylabel("streams")
+    ax2 = ax.twinx()
+    dropped = [100 * row["dropped"] / max(row["dropped"] + row["results"], 1) for row in tl]
+    ax2.plot(t, dropped, color="tab:red", label="dropped")
+    ax2.set_ylabel("dropped (%)", color="tab:red")
+    ax2.set_ylim(0, 100)
+    ax.set_title(f"{r['preset']}, {r['fps']:g} fps streams of {r['sequences'][0]}: capacity "
+                 f"{r['capacity']}, then {r['overload_streams']}, then {r['capacity']}",
+                 fontsize=9)
+    ax = axes[1]
+    ax.plot(t, [row["p50_ms"] for row in tl], label="p50")
+    ax.plot(t, [row["p99_ms"] for row in tl], label="p99")
+    ax.axhline(r["p99_criterion_ms"], color="grey", ls="--", lw=1, label="capacity criterion")
+    ax.set_ylabel("latency (ms)")
+    ax.legend(fontsize=8, loc="upper left")
+    ax = axes[2]
+    ax.plot(t, [row["anon_mb"] for row in tl], color="tab:green")
+    ax.set_ylabel("service memory (MB)\nanonymous, all processes", fontsize=8)
+    ax.set_xlabel("seconds")
+    for a in axes:
+        a.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
 
 def markdown(out: dict[str, Any]) -> str:
@@ -86,7 +127,7 @@ def markdown(out: dict[str, Any]) -> str:
     lines = [f"Machine: nproc {m['nproc']}, {m['cpu']}.", "",
              "| preset, fps, sequence | phase | streams | offered / processed (frames/s) | "
              "dropped | latency p50 / p99 / max (ms) | p99 1st / 2nd half (ms) | "
-             "PSS median / max (MB) | PSS trend (MB/min) |",
+             "memory median / max (MB) | memory trend (MB/min) |",
              "| --- " * 9 + "|"]
     for r in out["runs"]:
         name = f"{r['preset']}, {r['fps']:g}, {r['sequences'][0]}"
@@ -101,8 +142,8 @@ def markdown(out: dict[str, Any]) -> str:
                 f"{lat['p50']:.0f} / {lat['p99']:.0f} / {lat['max']:.0f} | "
                 f"{p['latency_ms_first_half']['p99']:.0f} / "
                 f"{p['latency_ms_second_half']['p99']:.0f} | "
-                f"{mem['pss_median_mb']:.0f} / {mem['pss_max_mb']:.0f} | "
-                f"{mem['pss_trend_mb_per_min']:+.1f} |")
+                f"{mem['anon_median_mb']:.0f} / {mem['anon_max_mb']:.0f} | "
+                f"{mem['anon_trend_mb_per_min']:+.1f} |")
             name = ""
     lines += ["", "| preset, fps, sequence | capacity | overload | recovered after (s) | "
               "ledger: results / dropped / unaccounted / out of order | "

@@ -2,11 +2,12 @@
 
 Spawns a service (one worker per CPU) on loopback and keeps ``--streams`` streams running, each
 for a random 20-60 s (a new one replaces it when it ends; every third with two sessions, every
-fifth reusing an old stream id, every one re-initialised half-way), while the proportional set
-size (PSS) of all the service's processes is sampled. Memory may rise while the service warms
-up (allocator pools, OpenCV and FFT buffers, Zenoh's); after ``--warmup`` it must stay flat.
-Reported: PSS at start, after warm-up and at the end (medians over a window), the linear trend
-after warm-up, sessions started and stopped, the frame ledger, and the series itself.
+fifth reusing an old stream id, every one re-initialised half-way), while the memory of all
+the service's processes is sampled: anonymous memory (heap and buffers, where a leak shows),
+with PSS and RSS beside it. Memory may rise while the service warms up (allocator pools, OpenCV
+and FFT buffers, Zenoh's); after ``--warmup`` it must stay flat. Reported: memory at start,
+after warm-up and at the end (medians over a window), the linear trend after warm-up, sessions
+started and stopped, the frame ledger, and the series itself.
 
     python benchmarks/soak.py                                # 20 min
     python benchmarks/soak.py --minutes 60 --streams 6 --out soak-60.json
@@ -83,8 +84,10 @@ def plot(r: dict[str, Any], path: Path) -> None:
 
     series = r["memory_series"]
     fig, ax = plt.subplots(figsize=(7, 3))
-    ax.plot([s[0] / 60 for s in series], [s[1] for s in series], label="PSS")
-    ax.plot([s[0] / 60 for s in series], [s[2] for s in series], label="RSS", alpha=0.6)
+    minutes = [s[0] / 60 for s in series]
+    ax.plot(minutes, [s[1] for s in series], label="anonymous")
+    ax.plot(minutes, [s[2] for s in series], label="PSS", alpha=0.6)
+    ax.plot(minutes, [s[3] for s in series], label="RSS", alpha=0.6)
     ax.axvline(r["warmup_s"] / 60, color="grey", ls="--", lw=1, label="end of warm-up")
     ax.set_xlabel("minutes")
     ax.set_ylabel("MB, all service processes")
@@ -103,15 +106,15 @@ def markdown(r: dict[str, Any]) -> str:
     return "\n".join([
         f"Machine: nproc {m['nproc']}, {m['cpu']}.", "",
         "| minutes | streams at a time | sessions started / stopped | frames sent | "
-        "PSS start / warm / end (MB) | growth after warm-up (MB) | trend (MB/h) | "
+        "anonymous memory start / warm / end (MB) | growth after warm-up (MB) | trend (MB/h) | "
         "RSS max (MB) | latency p50 / p99 (ms) | dropped | unaccounted | sessions left |",
         "| --- " * 12 + "|",
         f"| {r['duration_s'] / 60:.0f} | {r['streams']} | {r['sessions_started']} / "
         f"{r['sessions_stopped']} | {r['frames_sent']} | "
-        f"{r['memory_start_mb']['pss_median_mb']:.1f} / "
-        f"{r['memory_warm_mb']['pss_median_mb']:.1f} / "
-        f"{r['memory_end_mb']['pss_median_mb']:.1f} | {r['growth_mb']:+.1f} | "
-        f"{60 * r['memory_steady']['pss_trend_mb_per_min']:+.1f} | "
+        f"{r['memory_start_mb']['anon_median_mb']:.1f} / "
+        f"{r['memory_warm_mb']['anon_median_mb']:.1f} / "
+        f"{r['memory_end_mb']['anon_median_mb']:.1f} | {r['growth_mb']:+.1f} | "
+        f"{60 * r['memory_steady']['anon_trend_mb_per_min']:+.1f} | "
         f"{r['memory_steady']['rss_max_mb']:.0f} | {lat['p50']:.0f} / {lat['p99']:.0f} | "
         f"{100 * load['drop_fraction']:.1f} % | {led['unaccounted']} | "
         f"{r.get('active_sessions_after', float('nan')):.0f} |",

@@ -15,9 +15,8 @@
 Both drive a :class:`Fleet` of streams that can be added and removed while the service runs.
 A stream replays the first ``window`` frames of a real sequence forth and back (a palindrome,
 so the target moves continuously and a session never has to be re-initialised at a wrap).
-Memory is the proportional set size (PSS) of the service's process tree, read from
-``/proc/<pid>/smaps_rollup``: pages the spawned workers share with each other are split between
-them rather than counted once per process, as RSS would.
+Memory is read from ``/proc/<pid>/smaps_rollup`` for the service's whole process tree: the
+anonymous memory (where a leak would show; see :func:`memory_mb`), with PSS and RSS beside it.
 """
 
 from __future__ import annotations
@@ -41,27 +40,34 @@ GOLDEN = 0.6180339887498949
 
 # --------------------------------------------------------------------------- memory
 def memory_mb(pid: int) -> dict[str, float]:
-    """PSS and RSS (MB) of ``pid`` and its descendants, and how many processes that is."""
-    pss = rss = 0.0
+    """Memory of ``pid`` and its descendants (MB): anonymous, PSS and RSS, and how many
+    processes that is.
+
+    Anonymous memory (heap, NumPy arrays, Zenoh's buffers) is where a leak shows, and it is
+    the service's alone. PSS and RSS also count pages of shared libraries, and PSS splits those
+    between every process on the machine that maps them, so it moves when unrelated processes
+    start or stop: reported, but not what the bounds are checked on."""
+    out = {"anon_mb": 0.0, "pss_mb": 0.0, "rss_mb": 0.0}
+    fields = {"Anonymous:": "anon_mb", "Pss:": "pss_mb", "Rss:": "rss_mb"}
     pids = _process_tree(pid)
     for p in pids:
         with contextlib.suppress(OSError, ValueError):
-            text = Path(f"/proc/{p}/smaps_rollup").read_text()
-            for line in text.splitlines():
-                if line.startswith("Pss:"):
-                    pss += int(line.split()[1]) / 1024
-                elif line.startswith("Rss:"):
-                    rss += int(line.split()[1]) / 1024
-    return {"pss_mb": pss, "rss_mb": rss, "processes": float(len(pids))}
+            for line in Path(f"/proc/{p}/smaps_rollup").read_text().splitlines():
+                key = fields.get(line.split(" ", 1)[0])
+                if key:
+                    out[key] += int(line.split()[1]) / 1024
+    return {**out, "processes": float(len(pids))}
 
 
 class MemorySampler:
     """Samples :func:`memory_mb` of a process tree every ``interval`` seconds, on a thread."""
 
+    COLUMNS = ("t", "anon_mb", "pss_mb", "rss_mb", "processes")
+
     def __init__(self, pid: int, interval: float = 1.0) -> None:
         self.pid, self.interval = pid, interval
-        #: (monotonic time, PSS MB, RSS MB, processes)
-        self.samples: list[tuple[float, float, float, int]] = []
+        #: rows of COLUMNS (t: monotonic seconds)
+        self.samples: list[tuple[float, float, float, float, float]] = []
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="memory-sampler", daemon=True)
 
@@ -72,7 +78,8 @@ class MemorySampler:
     def _run(self) -> None:
         while True:
             m = memory_mb(self.pid)
-            self.samples.append((time.monotonic(), m["pss_mb"], m["rss_mb"], int(m["processes"])))
+            self.samples.append((time.monotonic(), m["anon_mb"], m["pss_mb"], m["rss_mb"],
+                                 m["processes"]))
             if self._stop.wait(self.interval):
                 return
 
@@ -81,21 +88,22 @@ class MemorySampler:
         self._thread.join(timeout=5 + self.interval)
 
     def between(self, t0: float, t1: float) -> np.ndarray:
-        """Samples in [t0, t1] as an array of rows (t, pss, rss, processes)."""
+        """Samples in [t0, t1], one row per sample, columns as in COLUMNS."""
         rows = [s for s in self.samples if t0 <= s[0] <= t1]
-        return np.asarray(rows, dtype=float).reshape(-1, 4)
+        return np.asarray(rows, dtype=float).reshape(-1, len(self.COLUMNS))
 
     def summary(self, t0: float, t1: float) -> dict[str, float]:
-        """Median, min and max PSS in a window, and its linear trend in MB per minute."""
+        """Median, min and max anonymous memory in a window and its linear trend (MB per
+        minute); PSS median and RSS max for reference."""
         rows = self.between(t0, t1)
         if len(rows) == 0:
             return {"samples": 0}
-        pss = rows[:, 1]
-        slope = float(np.polyfit(rows[:, 0], pss, 1)[0]) * 60 if len(rows) >= 3 else float("nan")
-        return {"samples": len(rows), "pss_median_mb": float(np.median(pss)),
-                "pss_min_mb": float(pss.min()), "pss_max_mb": float(pss.max()),
-                "rss_max_mb": float(rows[:, 2].max()), "pss_trend_mb_per_min": slope,
-                "processes": int(rows[:, 3].max())}
+        anon = rows[:, 1]
+        slope = float(np.polyfit(rows[:, 0], anon, 1)[0]) * 60 if len(rows) >= 3 else float("nan")
+        return {"samples": len(rows), "anon_median_mb": float(np.median(anon)),
+                "anon_min_mb": float(anon.min()), "anon_max_mb": float(anon.max()),
+                "anon_trend_mb_per_min": slope, "pss_median_mb": float(np.median(rows[:, 2])),
+                "rss_max_mb": float(rows[:, 3].max()), "processes": int(rows[:, 4].max())}
 
 
 # --------------------------------------------------------------------------- the fleet
@@ -292,14 +300,15 @@ def timeline(fleet: Fleet, memory: MemorySampler, t0: float, t1: float,
                      "results": w["results"], "dropped": w["dropped"],
                      "p50_ms": w["latency_ms"]["p50"], "p99_ms": w["latency_ms"]["p99"],
                      "track_ms": w["track_ms"],
-                     "pss_mb": float(mem[:, 1].mean()) if len(mem) else float("nan")})
+                     "anon_mb": float(mem[:, 1].mean()) if len(mem) else float("nan"),
+                     "pss_mb": float(mem[:, 2].mean()) if len(mem) else float("nan")})
     return rows
 
 
 def _recovery_time(fleet: Fleet, streams: list[_Stream], t_fall: float, t_end: float,
                    p99_ms: float, bin_s: float = 1.0) -> float:
-    """Seconds after the load fell until every later 1-s bin meets the capacity criterion
-    (NaN if the service never got there)."""
+    """Seconds after the load fell until every later 1-s bin has no drop and a p99 under
+    ``p99_ms`` (NaN if the service never got there)."""
     edges = np.arange(t_fall, t_end - bin_s + 1e-9, bin_s)
     good = [passes(fleet.window(a, a + bin_s, streams), p99_ms) for a in edges]
     for k in range(len(good)):
@@ -366,6 +375,12 @@ def run_overload(client: Any, sequences: list[Any], *, service_pid: int,
         return {"phase": name, **stats}
 
     ledger = fleet.ledger()
+    phases = [phase("nominal", "nominal", "overload", base),
+              phase("overload", "overload", "recovery"),
+              phase("recovery", "recovery_started", "end", base)]
+    # recovered: as good as before the overload. On a shared machine the nominal phase itself
+    # may exceed the capacity criterion now and then, so the bar is the worse of the two.
+    bar = max(p99_ms, 1.25 * phases[0]["latency_ms"]["p99"])
     return {
         "preset": preset, "fps": fps, "capacity": capacity, "factor": factor,
         "marks_s": {k: v - marks["nominal"] for k, v in marks.items()},
@@ -373,11 +388,9 @@ def run_overload(client: Any, sequences: list[Any], *, service_pid: int,
         "overload_streams": capacity + round(capacity * (factor - 1)), "phase_s": phase_s,
         "p99_criterion_ms": p99_ms, "window": window,
         "sequences": sorted({c[0] for c in fleet._clips}),
-        "phases": [phase("nominal", "nominal", "overload", base),
-                   phase("overload", "overload", "recovery"),
-                   phase("recovery", "recovery_started", "end", base)],
-        "recovery_s": _recovery_time(fleet, base, marks["recovery_started"], marks["end"],
-                                     p99_ms),
+        "phases": phases,
+        "recovery_bar_ms": bar,
+        "recovery_s": _recovery_time(fleet, base, marks["recovery_started"], marks["end"], bar),
         "memory_ramp_start_mb": memory.summary(marks["ramp"], marks["ramp"] + 2.0),
         "ledger": ledger,
         "results_dropped_total": ledger["dropped"],
@@ -428,9 +441,9 @@ def run_soak(client: Any, sequences: list[Any], *, service_pid: int,
                 spawn()
             if log and now >= next_report:
                 next_report += 60
-                m = memory.samples[-1] if memory.samples else (0, float("nan"), 0, 0)
+                m = memory.samples[-1] if memory.samples else (0, float("nan"), 0, 0, 0)
                 log(f"soak {now - t_start:.0f} s: {started} streams so far, "
-                    f"PSS {m[1]:.1f} MB")
+                    f"anonymous memory {m[1]:.1f} MB")
         fleet.close()
         time.sleep(1.0)
     finally:
@@ -454,10 +467,11 @@ def run_soak(client: Any, sequences: list[Any], *, service_pid: int,
         "load": fleet.window(t_start, t_end),
         "memory_start_mb": memory.summary(t_start, t_start + 2 * sample_s),
         "memory_warm_mb": warm, "memory_end_mb": end, "memory_steady": steady,
-        "growth_mb": end.get("pss_median_mb", float("nan")) - warm.get("pss_median_mb",
-                                                                           float("nan")),
-        "memory_series": [[round(r[0] - t_start, 1), round(r[1], 1), round(r[2], 1)]
-                          for r in rows],
+        "growth_mb": end.get("anon_median_mb", float("nan")) - warm.get("anon_median_mb",
+                                                                            float("nan")),
+        #: [seconds since start, anonymous MB, PSS MB, RSS MB]
+        "memory_series": [[round(r[0] - t_start, 1), round(r[1], 1), round(r[2], 1),
+                           round(r[3], 1)] for r in rows],
         "ledger": fleet.ledger(),
         "metrics_delta": {k: v for k, v in delta.items() if not k.endswith(("_bucket",
                                                                               "_created"))},

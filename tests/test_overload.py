@@ -42,6 +42,11 @@ def test_three_times_capacity(wakeboard: list) -> None:
         assert svc.stop() == 0
     nominal, overload, recovery = r["phases"]
     capacity = r["capacity"]
+    for p in r["phases"]:  # shown if an assertion fails
+        print(p["phase"], p["streams"], "streams, dropped", p["dropped"], "latency",
+              {k: round(v) for k, v in p["latency_ms"].items()}, "memory", p["memory"])
+    print("per second:", [(round(x["t"]), x["streams"], x["dropped"], round(x["p99_ms"]))
+                          for x in r["timeline"]])
     assert capacity >= 1 and overload["streams"] == 3 * capacity
     assert nominal["errors"] == overload["errors"] == recovery["errors"] == 0
     assert r["metrics_delta"].get("arcf_errors_total", 0) == 0
@@ -67,12 +72,12 @@ def test_three_times_capacity(wakeboard: list) -> None:
 
     # memory: bounded while overloaded, and back near where it was
     mem_nominal, mem_over = nominal["memory"], overload["memory"]
-    assert mem_over["pss_max_mb"] < mem_nominal["pss_median_mb"] + 150
-    assert abs(mem_over["pss_trend_mb_per_min"]) < 60  # i.e. under 10 MB over the phase
-    assert recovery["memory"]["pss_median_mb"] < mem_nominal["pss_median_mb"] + 50
+    assert mem_over["anon_max_mb"] < mem_nominal["anon_median_mb"] + 150
+    assert abs(mem_over["anon_trend_mb_per_min"]) < 60  # i.e. under 10 MB over the phase
+    assert recovery["memory"]["anon_median_mb"] < mem_nominal["anon_median_mb"] + 50
 
     # once the load falls, the remaining streams are served as before
-    assert r["recovery_s"] <= 8.0
+    assert r["recovery_s"] <= 5.0
     tail = recovery["latency_ms_second_half"]
     assert tail["p99"] < max(1.5 * nominal["latency_ms"]["p99"], 150.0)
     assert recovery["drop_fraction"] < 0.02
@@ -95,7 +100,7 @@ def test_soak_sessions_come_and_go(wakeboard: list) -> None:
     assert r["sessions_started"] == r["sessions_stopped"] > r["streams_started"]
     assert r["ledger"]["unaccounted"] == 0 and r["ledger"]["out_of_order"] == 0
     assert r["metrics_delta"].get("arcf_errors_total", 0) == 0
-    # after warm-up the service's memory (PSS of all its processes) stays flat
+    # after warm-up the service's memory (anonymous, all its processes) stays flat
     assert r["growth_mb"] < 5.0  # leaking one tracker per session shows as about 10 MB
-    assert r["memory_steady"]["pss_max_mb"] - r["memory_warm_mb"]["pss_median_mb"] < 20.0
+    assert r["memory_steady"]["anon_max_mb"] - r["memory_warm_mb"]["anon_median_mb"] < 20.0
     assert r["memory_steady"]["processes"] == r["memory_warm_mb"]["processes"]
