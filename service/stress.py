@@ -268,22 +268,34 @@ def passes(stats: dict[str, Any], p99_ms: float) -> bool:
 
 
 def find_capacity(fleet: Fleet, *, p99_ms: float = 100.0, step_s: float = 6.0,
-                  settle_s: float = 2.0, max_streams: int = 16, log: Any = None) -> int:
+                  settle_s: float = 2.0, max_streams: int = 16, warmup_s: float = 3.0,
+                  log: Any = None) -> int:
     """Add streams one at a time while the criterion holds; leave the fleet at the largest
-    count that passed (it removes the stream that failed) and return that count."""
-    while len(fleet.live) < max_streams:
-        fleet.add(1)
-        t0 = time.monotonic()
-        time.sleep(step_s)
-        stats = fleet.window(t0 + settle_s, time.monotonic(), fleet.live)
-        ok = passes(stats, p99_ms)
-        if log:
-            log(f"capacity: {len(fleet.live)} streams, p99 {stats['latency_ms']['p99']:.0f} ms, "
-                f"dropped {stats['dropped']}: {'pass' if ok else 'fail'}")
+    count that passed (it removes the stream that failed) and return that count.
+
+    The first stream runs ``warmup_s`` unmeasured (a fresh worker's first frames pay for
+    imports, FFT plans and allocator growth), and a level fails only if it fails twice in a row:
+    on a shared machine one noisy step would otherwise decide the capacity."""
+    fleet.add(1)
+    time.sleep(warmup_s)
+    while True:
+        for attempt in (1, 2):
+            t0 = time.monotonic()
+            time.sleep(step_s)
+            stats = fleet.window(t0 + settle_s, time.monotonic(), fleet.live)
+            ok = passes(stats, p99_ms)
+            if log:
+                log(f"capacity: {len(fleet.live)} streams, p99 "
+                    f"{stats['latency_ms']['p99']:.0f} ms, dropped {stats['dropped']}: "
+                    f"{'pass' if ok else 'fail' if attempt == 2 else 'fail, measuring again'}")
+            if ok:
+                break
         if not ok:
             fleet.remove(1)
-            break
-    return len(fleet.live)
+            return len(fleet.live)
+        if len(fleet.live) >= max_streams:
+            return len(fleet.live)
+        fleet.add(1)
 
 
 def timeline(fleet: Fleet, memory: MemorySampler, t0: float, t1: float,

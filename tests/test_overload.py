@@ -21,6 +21,9 @@ pytestmark = pytest.mark.skipif(not (data_root() / "uav123_10fps").is_dir(),
                                 reason="needs ../shared/data")
 
 FPS = 10.0
+# the capacity criterion of this test: looser than the benchmark's 100 ms, so that a noisy CI
+# machine does not underestimate the capacity (and three times it is surely an overload)
+P99_MS = 150.0
 
 
 @pytest.fixture(scope="module")
@@ -35,7 +38,7 @@ def test_three_times_capacity(wakeboard: list) -> None:
             r = run_overload(client, wakeboard, service_pid=svc.proc.pid,
                              metrics_url=svc.metrics_url, preset="arcf-h", fps=FPS,
                              factor=3.0, phase_s=10.0, settle_s=2.0, step_s=5.0,
-                             max_streams=10, window=30)
+                             max_streams=10, window=30, p99_ms=P99_MS)
             # the service still takes new work afterwards
             assert client.status().streams == []
     finally:
@@ -79,7 +82,7 @@ def test_three_times_capacity(wakeboard: list) -> None:
     # once the load falls, the remaining streams are served as before
     assert r["recovery_s"] <= 5.0
     tail = recovery["latency_ms_second_half"]
-    assert tail["p99"] < max(1.5 * nominal["latency_ms"]["p99"], 150.0)
+    assert tail["p99"] < max(1.5 * nominal["latency_ms"]["p99"], P99_MS)
     assert recovery["drop_fraction"] < 0.02
 
 
