@@ -2,12 +2,13 @@
 
 Spawns a service (one worker per CPU) on loopback and keeps ``--streams`` streams running, each
 for a random 20-60 s (a new one replaces it when it ends; every third with two sessions, every
-fifth reusing an old stream id, every one re-initialised half-way), while the memory of all
-the service's processes is sampled: anonymous memory (heap and buffers, where a leak shows),
-with PSS and RSS beside it. Memory may rise while the service warms up (allocator pools, OpenCV
-and FFT buffers, Zenoh's); after ``--warmup`` it must stay flat. Reported: memory at start,
-after warm-up and at the end (medians over a window), the linear trend after warm-up, sessions
-started and stopped, the frame ledger, and the series itself.
+fifth reusing an old stream id, re-initialised each time its clip starts over), while the
+memory of all the service's processes is sampled: anonymous memory (heap and buffers, where a
+leak shows), with PSS and RSS beside it. Memory may rise while the service warms up
+(allocator pools, OpenCV and FFT buffers, Zenoh's); after ``--warmup`` it must stay flat.
+
+Reported: memory at start, after warm-up and at the end (medians over a window), the linear
+trend after warm-up, sessions started and stopped, the frame ledger, and the series itself.
 
     python benchmarks/soak.py                                # 20 min
     python benchmarks/soak.py --minutes 60 --streams 6 --out soak-60.json

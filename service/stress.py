@@ -8,7 +8,8 @@
   in ``arcf_frames_dropped_total``); memory must stay bounded; and once the load falls the
   remaining streams must be served as before.
 - **Soak** (:func:`run_soak`): a steady load of streams that come and go (each with a random
-  lifetime, a re-initialisation half-way, some with two sessions, some reusing an old stream id)
+  lifetime, re-initialised whenever its clip starts over, some with two sessions, some reusing
+  an old stream id)
   for a long time, with the service's memory sampled throughout: it must not grow beyond a
   small bound once warm.
 
@@ -122,7 +123,7 @@ class _Stream:
     stop: threading.Event = field(default_factory=threading.Event)
     thread: threading.Thread | None = None
     sub: Any = None
-    reinit_at: int | None = None
+    reinit_on_wrap: bool = False
 
 
 class Fleet:
@@ -149,14 +150,17 @@ class Fleet:
         self.sessions_stopped = 0
 
     def add(self, n: int = 1, *, sessions: int = 1, name: str | None = None,
-            reinit_at: int | None = None) -> list[_Stream]:
-        """Start ``n`` streams (``name`` only with n=1, e.g. to reuse a stream id)."""
+            reinit_on_wrap: bool = False) -> list[_Stream]:
+        """Start ``n`` streams (``name`` only with n=1, e.g. to reuse a stream id). With
+        ``reinit_on_wrap`` the sessions are re-initialised on the first box each time the
+        clip starts over (the one frame where that box is right)."""
         out = []
         for _ in range(n):
             k = self._count
             self._count += 1
             clip_name, box, frames = self._clips[k % len(self._clips)]
-            st = _Stream(name or f"stress-{k}-{clip_name}", k, frames, box, reinit_at=reinit_at)
+            st = _Stream(name or f"stress-{k}-{clip_name}", k, frames, box,
+                         reinit_on_wrap=reinit_on_wrap)
 
             def on_result(r: Any, st: _Stream = st) -> None:
                 now = time.monotonic()
@@ -184,7 +188,7 @@ class Fleet:
             delay = t0 + i * period - time.monotonic()
             if delay > 0 and st.stop.wait(delay):
                 break
-            if st.reinit_at is not None and i == st.reinit_at:
+            if st.reinit_on_wrap and i and i % len(st.frames) == 0:
                 for sid in st.sessions:  # a new box on this frame: the tracker starts over
                     self.client.reinit(sid, st.box, frame_seq=i)
             self.client.publish_frame(st.name, data=st.frames[i % len(st.frames)], seq=i)
@@ -419,7 +423,7 @@ def run_soak(client: Any, sequences: list[Any], *, service_pid: int,
              sample_s: float = 5.0, seed: int = 0, log: Any = None) -> dict[str, Any]:
     """``streams`` streams at a time for ``duration_s``, each living a random time, replaced by
     a new one when it ends. Every third stream has two sessions, every fifth reuses the id of a
-    stream that ended, and every stream's sessions are re-initialised half-way through."""
+    stream that ended, and sessions are re-initialised each time their clip starts over."""
     rng = random.Random(seed)
     fleet = Fleet(client, sequences, preset=preset, fps=fps, window=window)
     memory = MemorySampler(service_pid, interval=sample_s).start()
@@ -437,7 +441,7 @@ def run_soak(client: Any, sequences: list[Any], *, service_pid: int,
         if name is not None and any(st.name == name for st in fleet.live):
             name = None
         (st,) = fleet.add(1, sessions=2 if started % 3 == 2 else 1, name=name,
-                          reinit_at=int(life * fps / 2))
+                          reinit_on_wrap=True)
         deadline[st.name] = time.monotonic() + life
         started += 1
 
