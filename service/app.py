@@ -119,7 +119,11 @@ class Service:
         self._stop.set()
 
     def wait(self) -> None:
+        from . import metrics
+
+        memory = metrics.MEMORY.labels(process="main")
         while not self._stop.wait(0.2):
+            memory.set(metrics.resident_bytes())
             for k, p in enumerate(self.procs):
                 if not p.is_alive() and not self._stop.is_set():
                     self._replace_worker(k)

@@ -6,6 +6,8 @@ or session id, so cardinality stays bounded whatever the traffic.
 
 from __future__ import annotations
 
+import os
+
 from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram, multiprocess
 
 LATENCY_BUCKETS = (0.005, 0.01, 0.02, 0.03, 0.05, 0.075, 0.1, 0.15, 0.2, 0.3, 0.5, 1.0, 2.0, 5.0)
@@ -36,6 +38,22 @@ STREAMS = Gauge("arcf_active_streams", "Streams with at least one session",
 SESSIONS = Gauge("arcf_active_sessions", "Tracking sessions", multiprocess_mode="livesum")
 BUSY = Gauge("arcf_worker_busy_ratio", "Share of wall time a worker spent working",
              ["worker"], multiprocess_mode="liveall")
+
+MEMORY = Gauge("arcf_process_resident_bytes",
+               "Resident memory of each process of the service (main, worker-<k>)",
+               ["process"], multiprocess_mode="liveall")
+
+
+def resident_bytes() -> int:
+    """This process's resident set, from /proc (0 where there is no /proc)."""
+    try:
+        with open("/proc/self/statm") as f:
+            return int(f.read().split()[1]) * _PAGE
+    except (OSError, ValueError, IndexError):
+        return 0
+
+
+_PAGE = os.sysconf("SC_PAGE_SIZE") if hasattr(os, "sysconf") else 4096
 
 
 def aggregate_registry() -> CollectorRegistry:

@@ -175,6 +175,7 @@ class Worker:
         self.streams: dict[str, _Stream] = {}
         self.sessions: dict[str, _Session] = {}
         self.busy = metrics.BUSY.labels(worker=str(index))
+        self.memory = metrics.MEMORY.labels(process=f"worker-{index}")
         self.wake = threading.Event()
         self.pending: deque[dict[str, Any]] = deque()
         threading.Thread(target=self._pump_commands, daemon=True,
@@ -454,6 +455,7 @@ class Worker:
             now = time.monotonic()
             if now - t_window >= 1.0:
                 self.busy.set(busy_s / (now - t_window))
+                self.memory.set(self.metrics.resident_bytes())
                 busy_s, t_window = 0.0, now
         if self.stop.is_set():
             self._drain()

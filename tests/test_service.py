@@ -200,6 +200,11 @@ def test_metrics_count_what_was_sent(service, frames) -> None:
     assert service.metric("arcf_end_to_end_latency_seconds_count") >= 10
     text = urllib.request.urlopen(service.metrics_url, timeout=5).read().decode()
     assert "count" not in re.findall(r'stream="([^"]+)"', text)  # no per-stream labels
+    # every process reports its resident memory (what an operator watches for leaks)
+    memory = dict(re.findall(r'^arcf_process_resident_bytes\{[^}]*process="([^"]+)"[^}]*\}'
+                             r'\s+([0-9.eE+]+)$', text, flags=re.M))
+    assert set(memory) == {"main", "worker-0", "worker-1"}
+    assert all(20e6 < float(v) < 2e9 for v in memory.values())
 
 
 def test_flooded_stream_drops_are_accounted_and_other_streams_unaffected(service, frames) -> None:
