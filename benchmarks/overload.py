@@ -40,7 +40,7 @@ def main() -> int:
     ap.add_argument("--sequences", default="wakeboard7")
     ap.add_argument("--factor", type=float, default=3.0)
     ap.add_argument("--phase", type=float, default=60.0, help="seconds per phase")
-    ap.add_argument("--step", type=float, default=8.0, help="seconds per capacity step")
+    ap.add_argument("--step", type=float, default=10.0, help="seconds per capacity step")
     ap.add_argument("--max-streams", type=int, default=16)
     ap.add_argument("--p99-ms", type=float, default=100.0)
     ap.add_argument("--window", type=int, default=40, help="frames replayed forth and back")
