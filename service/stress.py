@@ -265,6 +265,14 @@ class Fleet:
         return out
 
 
+def _metrics_delta(before: dict[str, float], metrics_url: str | None) -> dict[str, float]:
+    """How much each of the service's counters moved since ``before`` (histogram buckets
+    left out: their counts and sums are kept)."""
+    after = scrape(metrics_url)
+    return {k: after.get(k, 0.0) - before.get(k, 0.0) for k in after
+            if not k.endswith(("_bucket", "_created"))}
+
+
 # --------------------------------------------------------------------------- overload
 def passes(stats: dict[str, Any], p99_ms: float) -> bool:
     """The capacity criterion: p99 latency under the bound and not a single frame dropped."""
@@ -378,8 +386,7 @@ def run_overload(client: Any, sequences: list[Any], *, service_pid: int,
         memory.stop()
         if fleet.live:
             fleet.close()
-    after = scrape(metrics_url)
-    delta = {k: after.get(k, 0.0) - before.get(k, 0.0) for k in after}
+    delta = _metrics_delta(before, metrics_url)
 
     def phase(name: str, start: str, end: str, streams: list[_Stream] | None = None
               ) -> dict[str, Any]:
@@ -418,8 +425,7 @@ def run_overload(client: Any, sequences: list[Any], *, service_pid: int,
         "memory_ramp_start_mb": memory.summary(marks["ramp"], marks["ramp"] + 2.0),
         "ledger": ledger,
         "results_dropped_total": ledger["dropped"],
-        "metrics_delta": {k: v for k, v in delta.items() if not k.endswith(("_bucket",
-                                                                              "_created"))},
+        "metrics_delta": delta,
     }
 
 
@@ -474,8 +480,7 @@ def run_soak(client: Any, sequences: list[Any], *, service_pid: int,
         memory.stop()
         if fleet.live:
             fleet.close()
-    after = scrape(metrics_url)
-    delta = {k: after.get(k, 0.0) - before.get(k, 0.0) for k in after}
+    delta = _metrics_delta(before, metrics_url)
     # warm: the first window after warm-up; end: the same length at the end of the run
     span = min(max(60.0, 10 * sample_s), (duration_s - warmup_s) / 3)
     warm = memory.summary(t_start + warmup_s, t_start + warmup_s + span)
@@ -497,8 +502,7 @@ def run_soak(client: Any, sequences: list[Any], *, service_pid: int,
         "memory_series": [[round(r[0] - t_start, 1), round(r[1], 1), round(r[2], 1),
                            round(r[3], 1)] for r in rows],
         "ledger": fleet.ledger(),
-        "metrics_delta": {k: v for k, v in delta.items() if not k.endswith(("_bucket",
-                                                                              "_created"))},
+        "metrics_delta": delta,
     }
 
 
