@@ -21,8 +21,9 @@ pytestmark = pytest.mark.skipif(not (data_root() / "uav123_10fps").is_dir(),
                                 reason="needs ../shared/data")
 
 FPS = 10.0
-# the capacity criterion of this test: looser than the benchmark's 100 ms, so that a noisy CI
-# machine does not underestimate the capacity (and three times it is surely an overload)
+# the capacity is sized from saturation throughput (80 % of it), not from the benchmark's p99
+# ramp: on a busy shared machine that ramp can underestimate it threefold, and then three times
+# "capacity" is no overload at all. P99_MS is the latency bar for "served as before".
 P99_MS = 150.0
 
 
@@ -38,7 +39,8 @@ def test_three_times_capacity(wakeboard: list) -> None:
             r = run_overload(client, wakeboard, service_pid=svc.proc.pid,
                              metrics_url=svc.metrics_url, preset="arcf-h", fps=FPS,
                              factor=3.0, phase_s=10.0, settle_s=2.0, step_s=5.0,
-                             max_streams=10, window=30, p99_ms=P99_MS, nominal_share=0.5)
+                             max_streams=10, window=30, p99_ms=P99_MS, nominal_share=0.5,
+                             capacity_from="throughput")
             # the service still takes new work afterwards
             assert client.status().streams == []
     finally:
