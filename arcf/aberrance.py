@@ -23,17 +23,18 @@ def shift_to(m: np.ndarray, peak_from: tuple[int, int], peak_to: tuple[int, int]
 
 
 def map_difference(m_prev_shifted: np.ndarray, m_curr: np.ndarray) -> tuple[float, float]:
-    """The response-map difference of Eq. 2 in two forms: (Euclidean/Frobenius, spectral).
+    """The response-map difference of Eq. 2 in two forms: (paper, release).
 
-    The paper defines the Euclidean norm; the release stores MATLAB's ``norm`` of the matrix,
-    which is its largest singular value. The second form is what the published ``map_diff`` files
-    (and the paper's Table 2) contain.
+    The paper defines the Euclidean (Frobenius) norm of D = M_prev[ψ] − M_curr. The release
+    stores MATLAB's ``norm(abs(D))``: the largest singular value of the element-wise absolute
+    difference (the signed difference's is 23–42 % lower). The second form is what the published
+    ``map_diff`` files, and the paper's Table 2, contain.
     """
     d = (m_prev_shifted - m_curr).astype(np.float64)
     if not np.all(np.isfinite(d)):
         return float("nan"), float("nan")
     frob = float(np.sqrt(np.sum(d * d)))
-    spectral = float(np.linalg.norm(d, 2)) if d.size else 0.0
+    spectral = float(np.linalg.norm(np.abs(d), 2)) if d.size else 0.0
     return frob, spectral
 
 
@@ -42,17 +43,21 @@ def paper_target(m_prev: np.ndarray, peak_prev: tuple[int, int]) -> np.ndarray:
 
     The regulariser of Eq. 3 compares the shifted previous map with the new filter's response on
     the *training* sample, which is centred on the target, so its peak belongs where the label's
-    peak is: the origin. Returns the unshifted (origin-layout) map, ready for the DFT.
+    peak is: the origin. Returns the unshifted (origin-layout) map, ready for the DFT, so that
+    its spectrum and the label's ŷ are in the same (unnormalised) DFT convention.
     """
     h, w = m_prev.shape
     centred = shift_to(m_prev, peak_prev, (h // 2, w // 2))
     return sfft.ifftshift(centred)
 
 
-def release_target(
-    m_prev: np.ndarray, peak_prev: tuple[int, int], peak_curr: tuple[int, int]
-) -> np.ndarray:
-    """The release's aberrance "spectrum": the spatial previous map, shifted onto the current
-    detection peak and fftshifted, used as if it were a DFT (reference notes: the domain error).
+def release_target(m_prev_shifted: np.ndarray) -> np.ndarray:
+    """The release's aberrance "spectrum": T · M_prev[ψ], the spatial map used as if a DFT.
+
+    Three facts of the release, each needed for its boxes (reference notes, details 3 and 4):
+    the map is the spatial previous response, not its DFT (the domain error); it is kept in its
+    fftshifted layout (peak near the grid's centre, shifted onto the current peak), not moved to
+    the origin; and the release's g-step divides the label term by T = H·W but not the map
+    term. :func:`arcf.admm.solve_filter` divides every target by T, hence the factor T here.
     """
-    return sfft.fftshift(shift_to(m_prev, peak_prev, peak_curr))
+    return m_prev_shifted * float(m_prev_shifted.size)

@@ -21,7 +21,7 @@ from .errors import UnknownPresetError
 
 AberranceMode = Literal["paper", "release"]
 ScaleMode = Literal["search", "filter"]
-SamplingMode = Literal["bacf", "eco"]
+FhogArithmetic = Literal["exact", "release"]
 SizingMode = Literal["filter_max_area", "sample_area"]
 
 
@@ -72,10 +72,10 @@ class TrackerParams:
     newton_iterations: int
     #: ARCF-H rounds the translation to whole pixels; ARCF-HC keeps it sub-pixel (release).
     round_translation: bool
-    #: Patch sampling: BACF's ``get_pixels`` (ARCF-H) or ECO's ``sample_patch`` (ARCF-HC).
-    sampling: SamplingMode
     #: How the working resolution is chosen (see :mod:`arcf.tracker`).
     sizing: SizingMode
+    #: ARCF-HC's release rounds the boxes it reports to whole pixels; ARCF-H floors the size.
+    whole_pixel_boxes: bool = False
     #: gamma, the aberrance penalty (paper and release: 0.71). 0 gives BACF.
     gamma: float = 0.71
     #: lambda, the filter regulariser (paper and release: 0.01).
@@ -87,6 +87,12 @@ class TrackerParams:
     #: Aberrance term: "paper" uses the DFT of the shifted previous map (Eq. 5); "release" feeds
     #: the spatial map into the Fourier-domain formula as the authors' code does.
     aberrance: AberranceMode = "paper"
+    #: fHOG arithmetic: "release" reproduces the toolbox's SSE approximations (magnitude from an
+    #: approximate reciprocal square root, orientation from a 20,000-entry acos table), which
+    #: move orientation bins near their boundaries; "exact" bins by exact angle comparisons.
+    #: An approximation rather than a choice of the authors, hence an option (reference notes,
+    #: detail 2).
+    fhog_arithmetic: FhogArithmetic = "release"
     #: Scale each feature sample to unit mean energy per element, as ECO/STRCF's
     #: ``extract_features`` does (``normalize_power = 2``, ``normalize_size``, ``normalize_dim``).
     #: Off in every preset, as the reference notes describe the release; measured as an
@@ -102,7 +108,8 @@ class TrackerParams:
     filter_max_area: int = 2500
     #: ARCF-H: tiny-target rule threshold, 0.75^2 of ``filter_max_area`` (release, from BACF).
     cell_selection_thresh: float = 0.75**2
-    #: ARCF-HC: the search region's pixel area is rescaled into [150^2, 200^2] (release, ECO).
+    #: ARCF-HC: the search region's pixel area is rescaled into [150^2, 200^2], then its side is
+    #: rounded to a whole number of cells (release, ECO's ``init_features`` 'exact' size mode).
     min_image_sample_size: float = 150.0**2
     max_image_sample_size: float = 200.0**2
     #: ARCF-H scale search: 5 scales, step 1.01 (release, from BACF).
@@ -139,7 +146,7 @@ class TrackerParams:
             problems.append("newton_iterations must be >= 0")
         for name, allowed in (
             ("scale_mode", ("search", "filter")),
-            ("sampling", ("bacf", "eco")),
+            ("fhog_arithmetic", ("exact", "release")),
             ("sizing", ("filter_max_area", "sample_area")),
         ):
             if getattr(self, name) not in allowed:
@@ -180,7 +187,6 @@ ARCF_H = TrackerParams(
     scale_mode="search",
     newton_iterations=50,  # release (BACF)
     round_translation=True,  # release (BACF)
-    sampling="bacf",
     sizing="filter_max_area",
 )
 
@@ -192,8 +198,8 @@ ARCF_HC = TrackerParams(
     scale_mode="filter",
     newton_iterations=5,  # release (ECO/STRCF)
     round_translation=False,  # release (ECO/STRCF)
-    sampling="eco",
     sizing="sample_area",
+    whole_pixel_boxes=True,  # release: reported boxes rounded to whole pixels
 )
 
 #: BACF is ARCF-H without the aberrance term; the release's "Baseline_BACF" was produced this way.

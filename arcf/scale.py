@@ -9,7 +9,7 @@ import scipy.fft as sfft
 
 from .features.fhog import fhog
 from .features.patches import crop_replicate, resize_auto
-from .presets import ScaleFilterParams
+from .presets import FhogArithmetic, ScaleFilterParams
 
 
 def search_scale_factors(n_scales: int, step: float) -> np.ndarray:
@@ -44,8 +44,14 @@ class DSSTScaleFilter:
     MOSSE-style ratio sf_num / (sf_den + λ) in the Fourier domain over the scale axis.
     """
 
-    def __init__(self, params: ScaleFilterParams, init_target_sz: tuple[float, float]) -> None:
+    def __init__(
+        self,
+        params: ScaleFilterParams,
+        init_target_sz: tuple[float, float],
+        fhog_arithmetic: FhogArithmetic = "release",
+    ) -> None:
         self.params = params
+        self.fhog_arithmetic = fhog_arithmetic
         n = params.n_scales
         ss = np.arange(1, n + 1) - math.ceil(n / 2)
         sigma = math.sqrt(n) * params.sigma_factor
@@ -74,12 +80,13 @@ class DSSTScaleFilter:
         patches = []
         fr, fc = math.floor(pos[0]), math.floor(pos[1])
         for f in self.factors * scale:
-            ph = max(math.floor(base_target_sz[0] * f), 1)
-            pw = max(math.floor(base_target_sz[1] * f), 1)
+            ph = max(math.floor(base_target_sz[0] * f), 2)  # release (DSST): at least 2 px
+            pw = max(math.floor(base_target_sz[1] * f), 2)
             patch = crop_replicate(image, fr - ph // 2, fc - pw // 2, ph, pw)
             patches.append(resize_auto(patch, self.model_sz))
-        feats = fhog(np.stack(patches), 4)  # (S, h, w, 31)
-        xs = feats.reshape(len(patches), -1).T.astype(np.float64)
+        feats = fhog(np.stack(patches), 4, arithmetic=self.fhog_arithmetic)  # (S, h, w, 31)
+        # column-major (MATLAB's temp(:)) order of each scale's (h, w, 31) block
+        xs = feats.transpose(0, 3, 2, 1).reshape(len(patches), -1).T.astype(np.float64)
         return xs * self.window[None, :]
 
     def estimate(

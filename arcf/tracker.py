@@ -28,7 +28,7 @@ from .aberrance import map_difference, paper_target, peak_index, release_target,
 from .admm import Crop, solve_filter
 from .errors import InvalidBoxError, InvalidFrameError, NotInitializedError
 from .features.extract import FeatureExtractor
-from .features.patches import bacf_patch, eco_patch, matlab_round
+from .features.patches import bacf_patch, matlab_round
 from .fourier import gaussian_label, hann2d, newton_peak, peak_to_sidelobe, spatial_response
 from .presets import TrackerParams, make_params
 from .scale import DSSTScaleFilter, scale_limits, search_scale_factors
@@ -106,7 +106,11 @@ class ARCFTracker:
         else:
             self._configure_eco(x, y, w, h)
         self._extractor = FeatureExtractor(
-            self.params.features, self._cell, self._colornames_path, self.params.normalize_features
+            self.params.features,
+            self._cell,
+            self._colornames_path,
+            self.params.normalize_features,
+            self.params.fhog_arithmetic,
         )
         self._extractor.prepare(color)
         self._window = hann2d(self._use_sz)
@@ -205,15 +209,15 @@ class ARCFTracker:
         else:
             csf = 1.0
         base = target / csf
-        support = matlab_round(math.sqrt(float(np.prod(base * p.search_area_scale))))
-        self._cell = p.cell_size
-        support = max(support, 2 * self._cell)
+        self._cell = cell = p.cell_size
+        side = math.sqrt(float(np.prod(base * p.search_area_scale)))
+        support = max(matlab_round(side / cell) * cell, 2 * cell)
         self._sample_sz = support
         self._use_sz = (support // self._cell, support // self._cell)
         self._finish_configuration(base, csf, (float(support), float(support)))
         self._scale_factors = np.ones(1)
         sf = p.scale_filter
-        self._scale_filter = DSSTScaleFilter(sf, (float(h), float(w)))
+        self._scale_filter = DSSTScaleFilter(sf, (float(h), float(w)), p.fhog_arithmetic)
         self._min_scale, self._max_scale = scale_limits(
             sf.scale_step, (support, support), self._base_target_sz, self._image_hw
         )
@@ -237,23 +241,8 @@ class ARCFTracker:
     def _detect(self, image: np.ndarray) -> tuple[np.ndarray, float]:
         """Step 1: locate the target; updates position and scale. Returns (map, peak value)."""
         p = self.params
-        if p.sampling == "bacf":
-            sample_pos = self._pos
-            patches = np.stack(
-                [
-                    bacf_patch(
-                        image,
-                        sample_pos,
-                        (matlab_round(self._sample_sz * self._csf * f),) * 2,
-                        (self._sample_sz, self._sample_sz),
-                    )
-                    for f in self._scale_factors
-                ]
-            )
-        else:
-            sample_pos = (float(matlab_round(self._pos[0])), float(matlab_round(self._pos[1])))
-            side = self._sample_sz * self._csf
-            patches = eco_patch(image, sample_pos, (side, side), (self._sample_sz,) * 2)[None]
+        sample_pos = self._sample_pos()
+        patches = np.stack([self._patch(image, sample_pos, f) for f in self._scale_factors])
         xtf = self._fwd(self._extractor(patches, self._color) * self._window)  # (S, D, H, W')
         rf = np.sum(np.conj(self._g_f)[None] * xtf, axis=1)  # (S, H, W')
         if rf.shape[0] == 1:
@@ -280,29 +269,20 @@ class ARCFTracker:
         """Step 2: map difference (Eq. 2) and the aberrance target of the next ADMM solve."""
         m_curr = sfft.fftshift(response)
         p_curr = peak_index(m_curr)
-        frob, spectral = map_difference(shift_to(self._m_prev, self._p_prev, p_curr), m_curr)
+        m_prev_shifted = shift_to(self._m_prev, self._p_prev, p_curr)
+        frob, spectral = map_difference(m_prev_shifted, m_curr)
         target_f: np.ndarray | None = None
         if self.params.gamma:
             if self.params.aberrance == "paper":
                 target_f = self._fwd(paper_target(self._m_prev, self._p_prev).astype(np.float32))
             else:
-                target_f = release_target(self._m_prev, self._p_prev, p_curr).astype(np.complex64)
+                target_f = release_target(m_prev_shifted).astype(np.complex64)
         self._m_prev, self._p_prev = m_curr, p_curr
         return frob, spectral, target_f
 
     def _training_sample(self, image: np.ndarray) -> np.ndarray:
         """Step 3a: windowed features at the new position and scale, in the Fourier domain."""
-        if self.params.sampling == "bacf":
-            patch = bacf_patch(
-                image,
-                self._pos,
-                (matlab_round(self._sample_sz * self._csf),) * 2,
-                (self._sample_sz, self._sample_sz),
-            )
-        else:
-            pos = (float(matlab_round(self._pos[0])), float(matlab_round(self._pos[1])))
-            side = self._sample_sz * self._csf
-            patch = eco_patch(image, pos, (side, side), (self._sample_sz,) * 2)
+        patch = self._patch(image, self._sample_pos(), 1.0)
         return self._fwd(self._extractor(patch[None], self._color)[0] * self._window)
 
     def _solve(self, target_f: np.ndarray | None) -> np.ndarray:
@@ -324,6 +304,19 @@ class ARCFTracker:
         return g_f
 
     # ------------------------------------------------------------------ helpers
+    def _sample_pos(self) -> tuple[float, float]:
+        """Where windows are cut: the position rounded to a pixel (ARCF-H's already is)."""
+        return float(matlab_round(self._pos[0])), float(matlab_round(self._pos[1]))
+
+    def _patch(self, image: np.ndarray, pos: tuple[float, float], factor: float) -> np.ndarray:
+        """The search window at relative scale ``factor``, resized to the working size.
+
+        (S, S, C) uint8 RGB, S = ``self._sample_sz``; the window side is
+        ``round(S * csf * factor)`` source pixels (release: ``get_pixels``).
+        """
+        side = matlab_round(self._sample_sz * self._csf * factor)
+        return bacf_patch(image, pos, (side, side), (self._sample_sz, self._sample_sz))
+
     def _fwd(self, maps: np.ndarray) -> np.ndarray:
         return sfft.rfft2(maps) if self._hermitian else sfft.fft2(maps)
 
@@ -331,13 +324,23 @@ class ARCFTracker:
         th = self._base_target_sz[0] * self._csf
         tw = self._base_target_sz[1] * self._csf
         r, c = self._pos
-        if self.params.sampling == "bacf":
+        if self.params.whole_pixel_boxes:
+            x, y = c - (tw - 1) / 2, r - (th - 1) / 2
+            return (
+                float(matlab_round(x)),
+                float(matlab_round(y)),
+                float(max(matlab_round(tw), 1)),
+                float(max(matlab_round(th), 1)),
+            )
+        if self.params.sizing == "filter_max_area":
             # the release floors the size; a collapsed scale would give a 0-px side, which is
             # no box at all (nothing can be re-initialised from it), so report at least 1 px
             th, tw = float(max(math.floor(th), 1)), float(max(math.floor(tw), 1))
             return (c - math.floor(tw / 2), r - math.floor(th / 2), tw, th)
         return (c - (tw - 1) / 2, r - (th - 1) / 2, tw, th)
 
+    # Frames arrive as OpenCV's BGR; inside, colour is RGB as the release reads it (imread), which
+    # decides fHOG's channel ties and the Color Names index (reference notes, detail 1).
     def _frame_for_init(self, frame: np.ndarray) -> tuple[np.ndarray, bool]:
         validate_frame(frame)
         if frame.ndim == 2:
@@ -348,7 +351,7 @@ class ARCFTracker:
             frame[..., 1], frame[..., 2]
         ):
             return frame[..., :1], False  # gray stored as colour: the release drops CN
-        return frame, True
+        return cv2.cvtColor(frame, cv2.COLOR_BGR2RGB), True
 
     def _frame_for_update(self, frame: np.ndarray) -> np.ndarray:
         validate_frame(frame)
@@ -362,6 +365,8 @@ class ARCFTracker:
             return np.repeat(image, 3, axis=2)
         if not self._color and image.shape[2] == 3:
             return cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)[..., None]
+        if image.shape[2] == 3:
+            return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
         return image
 
 

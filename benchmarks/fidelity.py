@@ -1,17 +1,26 @@
-"""Fidelity benchmark: our trackers next to the authors' own boxes on the real sequences.
+"""Fidelity benchmark: our trackers next to the authors' release and their published boxes.
 
-Runs one-pass evaluation of ``arcf-hc``, ``arcf-h`` (both aberrance formulations) and ``bacf`` on
-every sequence present under the data root (UAV123@10fps, DTB70, UAVDT layouts), scores them with
-the official toolkit's convention, and prints a Markdown report comparing them with the authors'
-published boxes for the same tracker on the same sequences: precision@20 and AUC, the mean centre
-distance between our boxes and theirs, and the release-form map difference next to the published
-``map_diff`` files (UAV123@10fps).
+Runs one-pass evaluation of each configuration on every sequence present under the data root
+(UAV123@10fps, DTB70, UAVDT layouts) and prints the Markdown of ``docs/benchmarks.md`` §2:
 
-    python benchmarks/fidelity.py                 # all configurations, 2 processes
-    python benchmarks/fidelity.py --jobs 1 --configs arcf-h:paper
+1. accuracy (toolkit convention) of each configuration next to the release run here
+   (``reference_release/boxes``) and the authors' published boxes of the same tracker;
+2. per sequence, the mean centre distance to the release's boxes and the first frame that
+   differs by more than 0.5 px, then the distance to the published boxes;
+3. the release-form map difference against the release's ``map_diff`` files, on the frames
+   before the first divergence;
+4. the paper's Table 2 in both norms (Frobenius, as Eq. 2 defines it, and the release's);
+5. with ``--gammas``, a sweep of γ for the paper formulation.
 
-Runs are cached under ``--out`` (default ``results/fidelity``), so a rerun only scores; pass
-``--fresh`` to recompute.
+A configuration is ``<preset>[:<formulation>][:gamma=<value>][:fhog=<exact|release>]``, e.g.
+``arcf-h:release``, ``arcf-hc:paper:gamma=0.3``; ``bacf`` has γ = 0, so no formulation.
+
+    python benchmarks/fidelity.py                       # the default configurations, 2 processes
+    python benchmarks/fidelity.py --configs arcf-h:release --sequences truck4_2
+    python benchmarks/fidelity.py --gammas 0,0.1,0.2,0.4,0.71,1 --sweep arcf-h:paper
+
+Runs are cached under ``--out`` (default ``results/fidelity``): a rerun only scores; ``--fresh``
+recomputes.
 """
 
 from __future__ import annotations
@@ -22,6 +31,7 @@ import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
+from typing import Any
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
@@ -31,19 +41,36 @@ import numpy as np
 from arcf.data import data_root
 from arcf.eval import load_dataset, read_results, score_sequence, write_results
 from arcf.eval.metrics import centers
+from arcf.eval.report import map_difference_mean
 from arcf.eval.runner import DATASET_FOLDERS
 
-DATASETS = DATASET_FOLDERS  # our dataset names -> published-results folder names
-CONFIGS = {
-    "arcf-hc:paper": ("arcf-hc", {"aberrance": "paper"}, "ARCF-HC"),
-    "arcf-hc:release": ("arcf-hc", {"aberrance": "release"}, "ARCF-HC"),
-    "arcf-h:paper": ("arcf-h", {"aberrance": "paper"}, "ARCF-H"),
-    "arcf-h:release": ("arcf-h", {"aberrance": "release"}, "ARCF-H"),
-    "bacf": ("bacf", {}, "BACF"),
-}
+DEFAULT_CONFIGS = (
+    "arcf-hc:release", "arcf-hc:paper", "arcf-h:release", "arcf-h:paper", "bacf",
+)
+PUBLISHED = {"arcf-hc": "ARCF-HC", "arcf-h": "ARCF-H", "bacf": "BACF"}
+#: A run "matches" the release when its boxes' centres are this close on average (issue 12).
+MATCH_PX = 0.5
 
 
-def _run_one(job: tuple[str, str, str, str, str]) -> tuple[str, str, str, float, int]:
+def parse_config(config: str) -> tuple[str, dict[str, Any]]:
+    """``arcf-h:paper:gamma=0.3`` -> ("arcf-h", {"aberrance": "paper", "gamma": 0.3})."""
+    preset, *parts = config.split(":")
+    overrides: dict[str, Any] = {}
+    for part in parts:
+        if part in ("paper", "release"):
+            overrides["aberrance"] = part
+        elif part.startswith("gamma="):
+            overrides["gamma"] = float(part[6:])
+        elif part.startswith("fhog="):
+            overrides["fhog_arithmetic"] = part[5:]
+        else:
+            raise ValueError(f"bad configuration part {part!r} in {config!r}")
+    if preset not in PUBLISHED:
+        raise ValueError(f"unknown preset {preset!r} in {config!r}")
+    return preset, overrides
+
+
+def _run_one(job: tuple[str, str, str, str, str]) -> tuple[str, str, float, int]:
     config, dataset, seq_name, root, out = job
     import cv2
 
@@ -51,21 +78,184 @@ def _run_one(job: tuple[str, str, str, str, str]) -> tuple[str, str, str, float,
     from arcf.run import run_sequence
 
     cv2.setNumThreads(1)
-    preset, overrides, _ = CONFIGS[config]
+    preset, overrides = parse_config(config)
     (seq,) = load_dataset(dataset, root=Path(root) / dataset, sequences=[seq_name])
     frames = [seq.read_frame(i) for i in range(len(seq))]
-    tracker = arcf.create_tracker(preset, **overrides)
-    run = run_sequence(tracker, frames, seq.init_box)
-    target = Path(out) / config / DATASETS[dataset]
+    run = run_sequence(arcf.create_tracker(preset, **overrides), frames, seq.init_box)
+    target = Path(out) / config / DATASET_FOLDERS[dataset]
     target.mkdir(parents=True, exist_ok=True)
     np.savetxt(
         target / f"{seq_name}_map_diff.txt",
         np.array([[r.aberrance, r.aberrance_release] for r in run.results]),
-        fmt="%.7f",
+        fmt="%.9g",
         delimiter=",",
     )
     write_results(target / f"{seq_name}.txt", run.boxes)  # written last: marks the run done
-    return config, dataset, seq_name, run.fps, len(frames)
+    return config, seq_name, run.fps, len(frames)
+
+
+def centre_distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    n = min(len(a), len(b))
+    return np.linalg.norm(centers(a[:n]) - centers(b[:n]), axis=1)
+
+
+def first_divergence(d: np.ndarray, px: float = MATCH_PX) -> int | None:
+    """1-based first frame whose centres differ by more than ``px``; None if none does."""
+    over = np.flatnonzero(d > px)
+    return int(over[0]) + 1 if over.size else None
+
+
+class Report:
+    def __init__(self, data: Path, out: Path, sequences: dict[str, list[str]]) -> None:
+        self.data, self.out, self.sequences = data, out, sequences
+        self.pub = data / "published_results"
+        self.rel = data / "reference_release" / "boxes"
+
+    def pairs(self) -> list[tuple[str, str]]:
+        return [(ds, s) for ds, names in self.sequences.items() for s in names]
+
+    def ours(self, config: str, ds: str, s: str) -> np.ndarray:
+        return read_results(self.out / config / DATASET_FOLDERS[ds] / f"{s}.txt")
+
+    def our_map_diff(self, config: str, ds: str, s: str) -> np.ndarray:
+        f = self.out / config / DATASET_FOLDERS[ds] / f"{s}_map_diff.txt"
+        return np.loadtxt(f, delimiter=",", ndmin=2)
+
+    def gt(self, ds: str, s: str) -> np.ndarray:
+        return read_results(self.pub / DATASET_FOLDERS[ds] / "groundtruth" / f"{s}.txt")
+
+    def published(self, tracker: str, ds: str, s: str) -> np.ndarray:
+        return read_results(self.pub / DATASET_FOLDERS[ds] / tracker / f"{s}.txt")
+
+    def release(self, tracker: str, s: str) -> np.ndarray | None:
+        f = self.rel / tracker / f"{s}.txt"
+        return read_results(f) if f.is_file() else None
+
+    def score(self, boxes_of) -> tuple[float, float]:  # type: ignore[no-untyped-def]
+        p, a = [], []
+        for ds, s in self.pairs():
+            sc = score_sequence(boxes_of(ds, s), self.gt(ds, s))
+            p.append(sc.precision20)
+            a.append(sc.auc)
+        return float(np.mean(p)), float(np.mean(a))
+
+    # ------------------------------------------------------------------ tables
+    def accuracy(self, configs: list[str]) -> list[str]:
+        lines = [
+            "| configuration | ours P@20 / AUC | release run here | published | runs matching "
+            f"the release (mean ≤ {MATCH_PX} px) |",
+            "| --- | --- | --- | --- | --- |",
+        ]
+        for c in configs:
+            tracker = PUBLISHED[parse_config(c)[0]]
+            ours = self.score(lambda ds, s, c=c: self.ours(c, ds, s))
+            rel = self.score(lambda ds, s, t=tracker: self.release(t, s))
+            pub = self.score(lambda ds, s, t=tracker: self.published(t, ds, s))
+            matched = 0
+            for ds, s in self.pairs():
+                ref = self.release(tracker, s)
+                matched += ref is not None and centre_distance(
+                    self.ours(c, ds, s), ref).mean() <= MATCH_PX
+            lines.append(
+                f"| {c} | **{ours[0]:.3f} / {ours[1]:.3f}** | {rel[0]:.3f} / {rel[1]:.3f} "
+                f"| {pub[0]:.3f} / {pub[1]:.3f} | {matched} / {len(self.pairs())} |"
+            )
+        return lines
+
+    def distances(self, configs: list[str], to: str) -> list[str]:
+        lines = ["| sequence | " + " | ".join(configs) + " |", "| --- |" + " --- |" * len(configs)]
+        for ds, s in self.pairs():
+            cells = []
+            for c in configs:
+                tracker = PUBLISHED[parse_config(c)[0]]
+                ref = self.release(tracker, s) if to == "release" else self.published(
+                    tracker, ds, s)
+                if ref is None:
+                    cells.append("–")
+                    continue
+                d = centre_distance(self.ours(c, ds, s), ref)
+                first = first_divergence(d)
+                cells.append(f"{d.mean():.2f} ({first if first else '–'})" if to == "release"
+                             else f"{d.mean():.2f}")
+            lines.append(f"| {s} | " + " | ".join(cells) + " |")
+        return lines
+
+    def map_diff_agreement(self, configs: list[str]) -> list[str]:
+        lines = ["| sequence | " + " | ".join(configs) + " |", "| --- |" + " --- |" * len(configs)]
+        for ds, s in self.pairs():
+            cells = []
+            for c in configs:
+                tracker = PUBLISHED[parse_config(c)[0]]
+                f = self.rel / tracker / f"{s}_map_diff.txt"
+                ref_boxes = self.release(tracker, s)
+                if not f.is_file() or ref_boxes is None:
+                    cells.append("–")
+                    continue
+                theirs = np.loadtxt(f, ndmin=1)
+                mine = self.our_map_diff(c, ds, s)[:, 1]
+                first = first_divergence(centre_distance(self.ours(c, ds, s), ref_boxes), 0.0)
+                n = min(len(theirs), len(mine), (first or 10**9) - 1)
+                if n < 2:
+                    cells.append("–")
+                    continue
+                err = np.abs(mine[1:n] - theirs[1:n]) / np.maximum(np.abs(theirs[1:n]), 1e-12)
+                cells.append(f"{100 * err.max():.3f} % ({n - 1})")
+            lines.append(f"| {s} | " + " | ".join(cells) + " |")
+        return lines
+
+    def table2(self, configs: list[str]) -> list[str]:
+        lines = [
+            "| | ARCF-H, Frobenius (Eq. 2) | BACF, Frobenius | ARCF-H, release form "
+            "| BACF, release form |",
+            "| --- | --- | --- | --- | --- |",
+        ]
+        names = self.sequences.get("uav123_10fps", [])
+        by_tracker: dict[str, list[str]] = {"ARCF-H": [], "BACF": []}
+        for c in configs:
+            preset = parse_config(c)[0]
+            if preset in ("arcf-h", "bacf"):
+                by_tracker[PUBLISHED[preset]].append(c)
+        for h_cfg in by_tracker["ARCF-H"]:
+            for b_cfg in by_tracker["BACF"]:
+                cells = []
+                for column in (0, 1):
+                    for cfg in (h_cfg, b_cfg):
+                        values = np.concatenate([
+                            self.our_map_diff(cfg, "uav123_10fps", s)[1:, column] for s in names])
+                        cells.append(f"{np.nanmean(values):.4f}")
+                cells = [cells[0], cells[1], cells[2], cells[3]]
+                lines.append(f"| ours, {h_cfg} / {b_cfg}, {len(names)} local UAV123@10fps "
+                             f"sequences | " + " | ".join(cells) + " |")
+        for label, root, subset in (
+            ("release run here", self.rel, names),
+            ("authors' files", self.pub / "UAV123_10fps", names),
+        ):
+            vals = []
+            for tr in ("ARCF-H", "BACF"):
+                files = [root / tr / f"{s}_map_diff.txt" for s in subset]
+                ok = all(f.is_file() for f in files) and files
+                vals.append(f"{map_difference_mean(files):.4f}" if ok else "–")
+            lines.append(f"| {label}, same sequences | – | – | {vals[0]} | {vals[1]} |")
+        vals = []
+        for tr in ("ARCF-H", "BACF"):
+            files = sorted((self.pub / "UAV123_10fps" / tr).glob("*_map_diff.txt"))
+            vals.append(f"{map_difference_mean(files):.4f}" if files else "–")
+        lines.append(f"| authors' files, all 123 sequences | – | – | {vals[0]} | {vals[1]} |")
+        lines.append("| paper, Table 2 (UAV123@10fps) | – | – | 0.0106 | 0.0133 |")
+        return lines
+
+    def sweep(self, base: str, gammas: list[float]) -> list[str]:
+        lines = ["| γ | P@20 | AUC | per sequence P@20 / AUC |", "| --- | --- | --- | --- |"]
+        for g in gammas:
+            c = f"{base}:gamma={g:g}"
+            p, a = self.score(lambda ds, s, c=c: self.ours(c, ds, s))
+            per = ", ".join(
+                f"{s} {sc.precision20:.2f}/{sc.auc:.2f}"
+                for ds, s in self.pairs()
+                for sc in [score_sequence(self.ours(c, ds, s), self.gt(ds, s))]
+            )
+            lines.append(f"| {g:g} | {p:.3f} | {a:.3f} | {per} |")
+        return lines
 
 
 def main() -> int:
@@ -73,99 +263,73 @@ def main() -> int:
     ap.add_argument("--data", type=Path, default=data_root())
     ap.add_argument("--out", type=Path, default=Path("results/fidelity"))
     ap.add_argument("--jobs", type=int, default=2)
-    ap.add_argument("--configs", default=",".join(CONFIGS))
+    ap.add_argument("--configs", default=",".join(DEFAULT_CONFIGS))
+    ap.add_argument("--sequences", default="", help="comma-separated subset (default: all)")
+    ap.add_argument("--gammas", default="", help="γ values to sweep, e.g. 0,0.2,0.71")
+    ap.add_argument("--sweep", default="arcf-h:paper,arcf-hc:paper",
+                    help="configurations to sweep γ over")
     ap.add_argument("--fresh", action="store_true")
     args = ap.parse_args()
     configs = [c for c in args.configs.split(",") if c]
-    for c in configs:
-        if c not in CONFIGS:
-            ap.error(f"unknown config {c!r}; choose from {', '.join(CONFIGS)}")
-
-    sequences: dict[str, list[str]] = {}
-    for ds in DATASETS:
+    gammas = [float(g) for g in args.gammas.split(",") if g]
+    sweeps = [c for c in args.sweep.split(",") if c] if gammas else []
+    swept = [f"{b}:gamma={g:g}" for b in sweeps for g in gammas]
+    for c in configs + swept:
         try:
-            sequences[ds] = [s.name for s in load_dataset(ds, root=args.data / ds)]
-        except Exception as exc:  # a dataset that is absent locally is simply skipped
+            parse_config(c)
+        except ValueError as exc:
+            ap.error(str(exc))
+
+    wanted = {s for s in args.sequences.split(",") if s}
+    sequences: dict[str, list[str]] = {}
+    for ds in DATASET_FOLDERS:
+        try:
+            names = [s.name for s in load_dataset(ds, root=args.data / ds)]
+        except Exception as exc:  # a dataset absent locally is simply skipped
             print(f"# skipping {ds}: {exc}", file=sys.stderr)
+            continue
+        names = [n for n in names if not wanted or n in wanted]
+        if names:
+            sequences[ds] = names
     jobs = [
         (c, ds, s, str(args.data), str(args.out))
-        for c in configs
+        for c in configs + swept
         for ds, names in sequences.items()
         for s in names
-        if args.fresh or not (args.out / c / DATASETS[ds] / f"{s}.txt").exists()
+        if args.fresh or not (args.out / c / DATASET_FOLDERS[ds] / f"{s}.txt").exists()
     ]
     t0 = time.time()
-    fps: dict[tuple[str, str], float] = {}
     if jobs:
         with ProcessPoolExecutor(max_workers=args.jobs) as pool:
-            for i, (c, _ds, s, f, n) in enumerate(pool.map(_run_one, jobs), 1):
-                fps[(c, s)] = f
-                print(f"# [{i}/{len(jobs)}] {c} {s}: {n} frames, {f:.1f} FPS "
+            for i, (c, s, fps, n) in enumerate(pool.map(_run_one, jobs), 1):
+                print(f"# [{i}/{len(jobs)}] {c} {s}: {n} frames, {fps:.1f} FPS "
                       f"({time.time() - t0:.0f} s)", file=sys.stderr)
 
-    pub_root = args.data / "published_results"
-    print(f"Data root: `{args.data}`; convention: toolkit (OTB/UAV123 MATLAB); "
-          f"{sum(len(v) for v in sequences.values())} sequences.\n")
-    print("| configuration | ours P@20 | authors' P@20 | ours AUC | authors' AUC "
-          "| mean centre distance to authors' boxes (px) |")
-    print("| --- | --- | --- | --- | --- | --- |")
-    per_seq: dict[str, dict[str, float]] = {}
-    for c in configs:
-        _, _, pub_name = CONFIGS[c]
-        ours_p, ours_a, pub_p, pub_a, dists = [], [], [], [], []
-        for ds, names in sequences.items():
-            for s in names:
-                gt = read_results(pub_root / DATASETS[ds] / "groundtruth" / f"{s}.txt")
-                mine = read_results(args.out / c / DATASETS[ds] / f"{s}.txt")
-                theirs = read_results(pub_root / DATASETS[ds] / pub_name / f"{s}.txt")
-                a, b = score_sequence(mine, gt), score_sequence(theirs, gt)
-                ours_p.append(a.precision20)
-                ours_a.append(a.auc)
-                pub_p.append(b.precision20)
-                pub_a.append(b.auc)
-                n = min(len(mine), len(theirs))
-                d = float(np.nanmean(np.linalg.norm(centers(mine[:n]) - centers(theirs[:n]),
-                                                    axis=1)))
-                dists.append(d)
-                per_seq.setdefault(s, {})[c] = d
-        print(f"| {c} | {np.mean(ours_p):.3f} | {np.mean(pub_p):.3f} | {np.mean(ours_a):.3f} "
-              f"| {np.mean(pub_a):.3f} | {np.mean(dists):.2f} (median {np.median(dists):.2f}) |")
-
-    print("\nMean centre distance (px) between our boxes and the authors' for the same tracker:\n")
-    print("| sequence | " + " | ".join(configs) + " |")
-    print("| --- |" + " --- |" * len(configs))
-    for s, row in per_seq.items():
-        print(f"| {s} | " + " | ".join(f"{row[c]:.2f}" for c in configs) + " |")
-
-    print("\nPer-sequence precision@20 / AUC (ours, then the authors' run of the same tracker):\n")
-    print("| sequence | " + " | ".join(configs) + " |")
-    print("| --- |" + " --- |" * len(configs))
-    for ds, names in sequences.items():
-        for s in names:
-            gt = read_results(pub_root / DATASETS[ds] / "groundtruth" / f"{s}.txt")
-            cells = []
-            for c in configs:
-                a = score_sequence(read_results(args.out / c / DATASETS[ds] / f"{s}.txt"), gt)
-                b = score_sequence(
-                    read_results(pub_root / DATASETS[ds] / CONFIGS[c][2] / f"{s}.txt"), gt)
-                cells.append(f"{a.precision20:.2f}/{a.auc:.2f} ({b.precision20:.2f}/{b.auc:.2f})")
-            print(f"| {s} | " + " | ".join(cells) + " |")
-
-    mapdiff = [c for c in configs if CONFIGS[c][2] in ("ARCF-H", "BACF")]
-    if "uav123_10fps" in sequences and mapdiff:
-        print("\nMean response-map difference, release form (largest singular value), frames 2..n, "
-              "next to the published `map_diff` files (UAV123@10fps):\n")
-        print("| sequence | " + " | ".join(f"{c} (authors')" for c in mapdiff) + " |")
-        print("| --- |" + " --- |" * len(mapdiff))
-        for s in sequences["uav123_10fps"]:
-            cells = []
-            for c in mapdiff:
-                ours = np.loadtxt(args.out / c / "UAV123_10fps" / f"{s}_map_diff.txt",
-                                  delimiter=",")[1:, 1]
-                theirs = np.loadtxt(pub_root / "UAV123_10fps" / CONFIGS[c][2] /
-                                    f"{s}_map_diff.txt")[1:]
-                cells.append(f"{ours.mean():.4f} ({theirs.mean():.4f})")
-            print(f"| {s} | " + " | ".join(cells) + " |")
+    r = Report(args.data, args.out, sequences)
+    n_seq = sum(len(v) for v in sequences.values())
+    out = [f"Data root: `{args.data}`; {n_seq} sequences; toolkit convention.", ""]
+    out += ["Mean precision@20 / AUC over the sequences:", "", *r.accuracy(configs), ""]
+    out += ["Mean centre distance (px) to the release's boxes run here, and in brackets the "
+            f"first frame whose centres differ by more than {MATCH_PX} px:", ""]
+    out += [*r.distances(configs, "release"), ""]
+    out += ["Mean centre distance (px) to the authors' published boxes:", ""]
+    out += [*r.distances(configs, "published"), ""]
+    release_cfgs = [  # the trackers whose release writes map_diff files, in release mode
+        c for c in configs
+        if parse_config(c)[0] == "bacf"
+        or (parse_config(c)[0] == "arcf-h" and parse_config(c)[1].get("aberrance") == "release")
+    ]
+    if release_cfgs:
+        out += ["Release-form map difference against the release's `map_diff` files: the "
+                "largest relative error on the frames before the first frame whose box differs "
+                "at all (in brackets, how many frames that is):", ""]
+        out += [*r.map_diff_agreement(release_cfgs), ""]
+    if "uav123_10fps" in sequences:
+        out += ["The paper's Table 2 (mean response-map difference, frames 2..n pooled; lower "
+                "is better), both norms:", "", *r.table2(configs), ""]
+    for base in sweeps:
+        out += [f"γ sweep, `{base}`:", "", *r.sweep(base, gammas), ""]
+    print("\n".join(out))
     return 0
 
 

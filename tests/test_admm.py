@@ -1,10 +1,12 @@
-"""The ADMM solver minimises the paper's objective (Eq. 3/5) over cropped filters."""
+"""The ADMM solver minimises the paper's objective (Eq. 3/5) over cropped filters; the
+aberrance measure (Eq. 2) and the release's aberrance target that feed it."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
+from arcf.aberrance import map_difference, release_target
 from arcf.admm import Crop, objective, solve_filter
 from arcf.fourier import gaussian_label
 
@@ -102,3 +104,31 @@ def test_half_and_full_spectrum_agree_for_real_targets():
     g_half, _ = _run(x, y, target, 0.71, crop, True, 5)
     g_full, _ = _run(x, y, target, 0.71, crop, False, 5)
     assert np.allclose(g_full[..., : g_half.shape[-1]], g_half, atol=1e-8)
+
+
+def test_map_difference_paper_and_release_forms():
+    """(Frobenius norm of D, largest singular value of |D|) with D = M_prev[psi] - M_curr: the
+    release's ``norm(abs(D))`` is not the signed difference's spectral norm."""
+    m_curr = np.array([[0.5, 0.2], [0.1, 0.3]])
+    d = np.array([[1.0, -1.0], [1.0, 1.0]])  # ||D||_2 = sqrt(2), || |D| ||_2 = 2, ||D||_F = 2
+    frob, release = map_difference(m_curr + d, m_curr)
+    assert frob == pytest.approx(2.0) and release == pytest.approx(2.0)
+    assert np.linalg.norm(d, 2) == pytest.approx(np.sqrt(2.0))  # the signed form: lower
+    rng = np.random.default_rng(4)
+    a, b = rng.standard_normal((2, 9, 11))
+    frob, release = map_difference(a, b)
+    assert frob == pytest.approx(np.linalg.norm(a - b))
+    assert release == pytest.approx(np.linalg.norm(np.abs(a - b), 2))
+    assert release > np.linalg.norm(a - b, 2) * 1.05 and release <= frob * (1 + 1e-12)
+    assert all(np.isnan(map_difference(np.full((2, 2), np.nan), m_curr)))
+
+
+def test_release_target_is_the_shifted_map_times_the_number_of_cells():
+    """The release uses the spatial, fftshifted map M_prev[psi] as if it were a spectrum and
+    does not divide it by T = H*W as it does the label: solve_filter divides every target by T,
+    so the target handed to it is T * M_prev[psi], with no further shift."""
+    m = np.random.default_rng(6).random((5, 7))
+    before = m.copy()
+    target = release_target(m)
+    np.testing.assert_array_equal(target, m * 35.0)
+    np.testing.assert_array_equal(m, before)  # the input is not modified

@@ -1,8 +1,9 @@
 """Pixel features, feature stacking, patch sampling and the Fourier helpers.
 
 fHOG itself is covered by ``test_fhog.py``; here: the grayscale and Color Names channels, the
-FeatureExtractor's block layout, BACF/ECO patch sampling with border replication, the Gaussian
-label, Newton's sub-cell peak search and the (non-)Hermitian inverse FFT.
+FeatureExtractor's block layout, patch sampling (BACF's ``get_pixels``, used by both trackers)
+with border replication and the release's resize rule, the Gaussian label, Newton's sub-cell
+peak search and the (non-)Hermitian inverse FFT. Patches are RGB, as the tracker hands them over.
 """
 
 from __future__ import annotations
@@ -19,8 +20,8 @@ from arcf.data import default_colornames_path
 from arcf.errors import ColorNamesNotFoundError
 from arcf.features.extract import CHANNELS, FeatureExtractor
 from arcf.features.fhog import fhog
-from arcf.features.patches import bacf_patch, crop_replicate, eco_patch, matlab_round, resize_auto
-from arcf.features.pixel import ColorNames, cell_average, gray_features
+from arcf.features.patches import bacf_patch, crop_replicate, resize_auto
+from arcf.features.pixel import RGB2GRAY, ColorNames, cell_average, gray_features
 from arcf.fourier import (
     gaussian_label,
     newton_peak,
@@ -87,16 +88,44 @@ def test_gray_feature_arbitrary_values_and_cells() -> None:
         np.testing.assert_allclose(out[..., 0], expected, atol=1e-6)
 
 
-def test_gray_feature_of_a_colour_patch_uses_rgb2gray_weights() -> None:
-    b, g, r = 10, 200, 90  # 0.299 R + 0.587 G + 0.114 B = 145.45 -> 145
+def rgb2gray_float(r: float, g: float, b: float) -> float:
+    """MATLAB's ``rgb2gray`` of one pixel of ``single(im) / 255`` (no 8-bit rounding)."""
+    return (0.298936021293775 * r + 0.587043074451121 * g + 0.114020904255103 * b) / 255
+
+
+def test_gray_feature_of_a_colour_patch_uses_float_rgb2gray() -> None:
+    """Patches are RGB; grey is rgb2gray of the float image in [0, 1], minus 0.5 (release)."""
+    np.testing.assert_array_equal(
+        RGB2GRAY, [0.298936021293775, 0.587043074451121, 0.114020904255103]
+    )
+    r, g, b = 90, 200, 10  # rgb2gray: 145.4534 / 255; rounding to 8-bit grey first gives 145
     patch = np.empty((1, 8, 12, 3), np.uint8)
-    patch[...] = (b, g, r)
+    patch[...] = (r, g, b)  # RGB order
     out = gray_features(patch, 4)
-    assert out.shape == (1, 2, 3, 1)
-    np.testing.assert_allclose(out, 145 / 255 - 0.5, atol=1e-6)
-    # a BGR patch is not read as RGB: swapping R and B gives another value
+    assert out.shape == (1, 2, 3, 1) and out.dtype == np.float32
+    expected = rgb2gray_float(r, g, b) - 0.5
+    np.testing.assert_allclose(out, expected, atol=1e-6)
+    # not the 8-bit grey of OpenCV / MATLAB's uint8 rgb2gray (1.8e-3 away)
+    assert abs(expected - (145 / 255 - 0.5)) > 1e-3
+    assert not np.allclose(out, 145 / 255 - 0.5, atol=1e-4)
+    # channel 0 is R: the same pixel in BGR order gives another value
     swapped = np.ascontiguousarray(patch[..., ::-1])
-    assert not np.allclose(gray_features(swapped, 4), out)
+    np.testing.assert_allclose(gray_features(swapped, 4), rgb2gray_float(b, g, r) - 0.5, atol=1e-6)
+    assert not np.allclose(gray_features(swapped, 4), out, atol=1e-3)
+
+
+def test_gray_feature_of_a_colour_patch_arbitrary_values() -> None:
+    """Per-pixel float rgb2gray, then the cell mean (float32 integral image: ~1e-7 here)."""
+    rng = np.random.default_rng(12)
+    patch = rng.integers(0, 256, size=(2, 13, 18, 3), dtype=np.uint8)
+    for cell in (1, 3, 4):
+        out = gray_features(patch, cell)
+        hb, wb = 13 // cell, 18 // cell
+        assert out.shape == (2, hb, wb, 1)
+        p = patch[:, : hb * cell, : wb * cell].astype(np.float64)
+        gray = rgb2gray_float(p[..., 0], p[..., 1], p[..., 2]) - 0.5
+        expected = gray.reshape(2, hb, cell, wb, cell).mean(axis=(2, 4))
+        np.testing.assert_allclose(out[..., 0], expected, atol=2e-6)
 
 
 @pytest.mark.parametrize(
@@ -116,17 +145,42 @@ def test_cell_average_floors_the_grid(shape: tuple, cell: int, grid: tuple) -> N
     for i in range(grid[0]):
         for j in range(grid[1]):
             block = maps[:, i * cell : (i + 1) * cell, j * cell : (j + 1) * cell]
-            np.testing.assert_allclose(out[:, i, j], block.mean(axis=(1, 2)), rtol=1e-6)
+            # float32 integral image (release): the rounding of running sums up to ~45 here
+            # (float32 spacing 4e-6), divided by the cell area, not relative to the mean
+            np.testing.assert_allclose(
+                out[:, i, j], block.mean(axis=(1, 2)), rtol=1e-6, atol=1e-5
+            )
+
+
+def test_cell_average_is_the_release_float32_integral_image() -> None:
+    """ECO's average_feature_region: float32 cumsum down the rows, then along the columns,
+    four corner reads per cell, divided by the cell area; equal to that bit for bit, and to a
+    block mean up to float32 rounding of the running sums (~3e-5 on a 200x200 patch)."""
+    rng = np.random.default_rng(13)
+    maps = (rng.random((2, 200, 203, 2)) - 0.5).astype(np.float32)
+    cell = 4
+    out = cell_average(maps, cell)
+    assert out.shape == (2, 50, 50, 2) and out.dtype == np.float32
+    integral = np.zeros((2, 201, 201, 2), np.float32)
+    integral[:, 1:, 1:] = np.cumsum(
+        np.cumsum(maps[:, :200, :200], axis=1, dtype=np.float32), axis=2, dtype=np.float32
+    )
+    c = integral[:, ::cell, ::cell]
+    expected = (c[:, 1:, 1:] - c[:, 1:, :-1] - c[:, :-1, 1:] + c[:, :-1, :-1]) / np.float32(16)
+    np.testing.assert_array_equal(out, expected)
+    block = maps[:, :200, :200].astype(np.float64).reshape(2, 50, 4, 50, 4, 2).mean(axis=(2, 4))
+    np.testing.assert_allclose(out, block, atol=1e-4)
 
 
 # --------------------------------------------------------------------------- Color Names
 
 
-def test_colornames_index_from_bgr_frames(index_table: Path) -> None:
+def test_colornames_index_from_rgb_patches(index_table: Path) -> None:
+    """Patches reach the features in RGB order (the tracker converts OpenCV's BGR frames)."""
     cn = ColorNames(index_table)
-    b, g, r = 200, 100, 37
+    r, g, b = 37, 100, 200
     patch = np.empty((1, 8, 8, 3), np.uint8)
-    patch[...] = (b, g, r)  # OpenCV order
+    patch[...] = (r, g, b)  # RGB order: channel 0 is R
     out = cn(patch, 4)
     assert out.shape == (1, 2, 2, 10) and out.dtype == np.float32
     idx = cn_index(r, g, b)
@@ -136,14 +190,16 @@ def test_colornames_index_from_bgr_frames(index_table: Path) -> None:
         out[..., 1:4], np.broadcast_to([r // 8, g // 8, b // 8], (1, 2, 2, 3))
     )
     assert idx != cn_index(b, g, r)  # the RGB/BGR mix-up would be caught
+    bgr = np.ascontiguousarray(patch[..., ::-1])
+    np.testing.assert_array_equal(cn(bgr, 4)[..., 0], cn_index(b, g, r))
 
 
 def test_colornames_every_bin_boundary(index_table: Path) -> None:
     cn = ColorNames(index_table)
     values = np.array([0, 7, 8, 15, 16, 127, 128, 247, 248, 255], np.uint8)
     r, g, b = np.meshgrid(values, values, values, indexing="ij")
-    bgr = np.stack([b.ravel(), g.ravel(), r.ravel()], axis=-1)[None, None]  # (1, 1, n, 3)
-    out = cn(bgr, 1)[0, 0, :, 0]
+    rgb = np.stack([r.ravel(), g.ravel(), b.ravel()], axis=-1)[None, None]  # (1, 1, n, 3)
+    out = cn(rgb, 1)[0, 0, :, 0]
     expected = [
         cn_index(int(x), int(y), int(z))
         for x, y, z in zip(r.ravel(), g.ravel(), b.ravel(), strict=True)
@@ -154,8 +210,8 @@ def test_colornames_every_bin_boundary(index_table: Path) -> None:
 def test_colornames_cell_mean_of_table_rows(index_table: Path) -> None:
     cn = ColorNames(index_table)
     patch = np.zeros((1, 4, 8, 3), np.uint8)
-    patch[0, :, :4] = (0, 0, 255)  # red -> row 31
-    patch[0, :, 4:6] = (255, 0, 0)  # blue -> row 31744
+    patch[0, :, :4] = (255, 0, 0)  # red -> row 31
+    patch[0, :, 4:6] = (0, 0, 255)  # blue -> row 31744
     patch[0, :, 6:] = (0, 255, 0)  # green -> row 992
     out = cn(patch, 4)
     assert out.shape == (1, 1, 2, 10)
@@ -169,9 +225,9 @@ def test_colornames_real_table_row() -> None:
     assert table.shape == (32768, 10)
     cn = ColorNames(path)
     rng = np.random.default_rng(5)
-    for b, g, r in rng.integers(0, 256, size=(5, 3)):
+    for r, g, b in rng.integers(0, 256, size=(5, 3)):
         patch = np.empty((1, 4, 4, 3), np.uint8)
-        patch[...] = (b, g, r)
+        patch[...] = (r, g, b)
         out = cn(patch, 4)[0, 0, 0]
         np.testing.assert_allclose(out, table[cn_index(int(r), int(g), int(b))], rtol=1e-6)
 
@@ -216,12 +272,19 @@ def test_extractor_block_order(index_table: Path) -> None:
     out = FeatureExtractor(("gray", "fhog", "cn"), 4, str(index_table))(patches, True)
     assert sum(CHANNELS.values()) == 42
     np.testing.assert_array_equal(out[:, 0], gray_features(patches, 4)[..., 0])
-    np.testing.assert_array_equal(out[:, 1:32], fhog(patches, 4).transpose(0, 3, 1, 2))
+    # fHOG with the release's arithmetic by default
+    release = fhog(patches, 4, arithmetic="release").transpose(0, 3, 1, 2)
+    np.testing.assert_array_equal(out[:, 1:32], release)
     np.testing.assert_array_equal(
         out[:, 32:], ColorNames(index_table)(patches, 4).transpose(0, 3, 1, 2)
     )
+    exact = FeatureExtractor(("gray", "fhog", "cn"), 4, str(index_table), fhog_arithmetic="exact")
+    out_exact = exact(patches, True)
+    np.testing.assert_array_equal(out_exact[:, 1:32], fhog(patches, 4).transpose(0, 3, 1, 2))
+    np.testing.assert_array_equal(out_exact[:, [0, *range(32, 42)]], out[:, [0, *range(32, 42)]])
+    assert not np.array_equal(out_exact[:, 1:32], release)
     # gray frames skip the Color Names block
-    g = np.stack([cv2.cvtColor(p, cv2.COLOR_BGR2GRAY) for p in patches])[..., None]
+    g = np.stack([cv2.cvtColor(p, cv2.COLOR_RGB2GRAY) for p in patches])[..., None]
     out_g = FeatureExtractor(("gray", "fhog", "cn"), 4, "/nonexistent.npy")(g, False)
     assert out_g.shape == (2, 32, 10, 9)
     np.testing.assert_array_equal(out_g[:, 0], gray_features(g, 4)[..., 0])
@@ -327,74 +390,44 @@ def test_bacf_patch_resizes_with_area_or_linear() -> None:
 
 
 @pytest.mark.parametrize(
-    ("pos", "sample"),
-    [((10.0, 20.0), 5.0), ((10.6, 20.4), 6.0), ((1.0, 44.0), 7.4), ((-3.0, 2.0), 4.5)],
-)
-def test_eco_patch_window_placement(pos: tuple[float, float], sample: float) -> None:
-    """ECO's sample_patch: s = round(sample); 1-based rows floor(pos) + (1..s) - floor((s+1)/2)."""
-    image = coord_image(32, 45)
-    s = matlab_round(sample)
-    out = eco_patch(image, pos, (sample, sample), (s, s))
-    top = math.floor(pos[0]) - (s + 1) // 2
-    left = math.floor(pos[1]) - (s + 1) // 2
-    np.testing.assert_array_equal(out, padded_window(image, top, left, s, s))
-    if s % 2 == 1:  # odd windows are centred on the position's pixel
-        c = s // 2
-        assert tuple(out[c, c]) == (
-            min(max(math.floor(pos[0]) - 1, 0), 31),
-            min(max(math.floor(pos[1]) - 1, 0), 44),
-        )
-
-
-def eco_reference(
-    image: np.ndarray, pos: tuple[float, float], sample: float, out: int
-) -> np.ndarray:
-    """ECO's sample_patch written out in MATLAB's 1-based terms (no shortcuts)."""
-    pos1 = np.floor(np.array(pos))
-    sample_sz = np.array([sample, sample])
-    resize_factor = min(sample / out, sample / out)
-    df = max(math.floor(resize_factor - 0.1), 1)
-    im = image
-    if df > 1:
-        os_ = np.mod(pos1 - 1, df)
-        im = image[int(os_[0]) :: df, int(os_[1]) :: df]  # im(os+1:df:end, ...)
-        pos1 = (pos1 - 1 - os_) / df + 1
-        sample_sz = sample_sz / df
-    sz = np.maximum(np.array([matlab_round(v) for v in sample_sz]), 2)
-    ys = pos1[0] + np.arange(1, sz[0] + 1) - np.floor((sz[0] + 1) / 2)
-    xs = pos1[1] + np.arange(1, sz[1] + 1) - np.floor((sz[1] + 1) / 2)
-    ys = np.clip(ys, 1, im.shape[0]).astype(int) - 1
-    xs = np.clip(xs, 1, im.shape[1]).astype(int) - 1
-    return resize_auto(im[np.ix_(ys, xs)], (out, out))
-
-
-@pytest.mark.parametrize(
-    ("pos", "sample", "out", "df"),
+    ("in_hw", "out_hw", "linear"),
     [
-        ((60.0, 70.0), 40.0, 20, 1),  # factor 2.0: no decimation
-        ((60.0, 70.0), 41.0, 20, 1),  # factor 2.05 < 2.1: none
-        ((60.0, 70.0), 45.0, 20, 2),  # factor 2.25: every 2nd pixel
-        ((61.3, 70.8), 90.0, 20, 4),  # factor 4.5: every 4th
-        ((3.0, 118.0), 70.0, 20, 3),  # near the border: decimated grid replicated
-        ((100.0, 5.5), 200.0, 30, 6),  # window larger than the image
+        ((40, 40), (15, 15), False),  # square, shrinking: both rules say area
+        ((20, 20), (40, 40), True),  # square, enlarging: both rules say linear
+        ((20, 20), (20, 21), True),  # 21 columns > 20 rows
+        ((20, 20), (50, 20), False),  # enlarging, but 20 columns = 20 rows: area
+        # non-square, where "area when shrinking" disagrees with the release:
+        ((22, 48), (15, 32), True),  # shrinking (a DSST scale sample), but 32 columns > 22 rows
+        ((10, 40), (8, 20), True),  # shrinking, 20 columns > 10 rows
+        ((40, 10), (60, 12), False),  # enlarging (720 > 400 px), but 12 columns <= 40 rows
+        ((48, 22), (32, 15), False),  # shrinking, 15 <= 48: area either way
     ],
 )
-def test_eco_patch_decimation(pos: tuple[float, float], sample: float, out: int, df: int) -> None:
-    rng = np.random.default_rng(7)
-    image = rng.integers(0, 256, size=(110, 120, 3), dtype=np.uint8)
-    assert max(math.floor(sample / out - 0.1), 1) == df
-    patch = eco_patch(image, pos, (sample, sample), (out, out))
-    assert patch.shape == (out, out, 3)
-    np.testing.assert_array_equal(patch, eco_reference(image, pos, sample, out))
-    if df > 1:
-        # the decimated grid keeps the phase of the position's pixel: on an image that is 255
-        # exactly on the rows (channel 0) / columns (channel 1) congruent to it modulo df, and 0
-        # elsewhere, every sample of the patch (before and after resizing) is 255
-        rows, cols = np.mgrid[0:110, 0:120]
-        r0, c0 = math.floor(pos[0]) - 1, math.floor(pos[1]) - 1
-        phase = np.stack([(rows - r0) % df == 0, (cols - c0) % df == 0, rows >= 0], axis=-1)
-        on_grid = eco_patch((phase * 255).astype(np.uint8), pos, (sample, sample), (out, out))
-        assert np.all(on_grid == 255)
+def test_resize_auto_follows_the_release_rule(
+    in_hw: tuple[int, int], out_hw: tuple[int, int], linear: bool
+) -> None:
+    """mexResize 'auto' as the release calls it: linear interpolation when the requested number
+    of columns exceeds the input's number of rows, area otherwise (not "area when shrinking")."""
+    rng = np.random.default_rng(14)
+    patch = rng.integers(0, 256, size=(*in_hw, 3), dtype=np.uint8)
+    assert (out_hw[1] > in_hw[0]) == linear
+    out = resize_auto(patch, out_hw)
+    assert out.shape == (*out_hw, 3)
+    dsize = (out_hw[1], out_hw[0])
+    want = cv2.INTER_LINEAR if linear else cv2.INTER_AREA
+    other = cv2.INTER_AREA if linear else cv2.INTER_LINEAR
+    np.testing.assert_array_equal(out, cv2.resize(patch, dsize, interpolation=want))
+    # the two interpolations give different pixels here, so the rule is really exercised
+    assert not np.array_equal(out, cv2.resize(patch, dsize, interpolation=other))
+    # a single-channel patch keeps its trailing channel axis
+    one = resize_auto(np.ascontiguousarray(patch[..., :1]), out_hw)
+    assert one.shape == (*out_hw, 1)
+    np.testing.assert_array_equal(one[..., 0], out[..., 0])
+
+
+def test_resize_auto_same_size_is_the_identity() -> None:
+    patch = np.random.default_rng(15).integers(0, 256, size=(9, 13, 3), dtype=np.uint8)
+    assert resize_auto(patch, (9, 13)) is patch
 
 
 # --------------------------------------------------------------------------- Fourier helpers

@@ -133,14 +133,15 @@ def test_uavdt_no_worse_than_the_authors_run(preset: str) -> None:
 
 # (case, preset) -> max mean centre distance to the authors' boxes (release mode), in px.
 PUBLISHED_LIMITS = {
-    (WAKEBOARD7, "arcf-h"): 4.0,  # measured 1.2 (one frame 17 px); static box 189
-    (WAKEBOARD7, "arcf-hc"): 4.0,  # measured 1.5; static 190
-    (MOUNTAINBIKE6, "arcf-h"): 5.0,  # measured 1.8; static 80
-    (MOUNTAINBIKE6, "arcf-hc"): 5.0,  # measured 1.6; static 80
-    (ANIMAL3, "arcf-h"): 4.0,  # measured 0.9; static 78
-    (ANIMAL3, "arcf-hc"): 4.0,  # measured 1.3; static 79
-    (S0310, "arcf-h"): 5.0,  # measured 1.7; static 10.6
-    (S0310, "arcf-hc"): 6.0,  # measured 2.2; static 17.2
+    # measured with the release-faithful sampling, RGB features and fHOG arithmetic
+    (WAKEBOARD7, "arcf-h"): 4.0,  # measured 0.70 (one frame 18 px); static box 189
+    (WAKEBOARD7, "arcf-hc"): 4.0,  # measured 0.015; static 190
+    (MOUNTAINBIKE6, "arcf-h"): 5.0,  # measured 0.41; static 80
+    (MOUNTAINBIKE6, "arcf-hc"): 5.0,  # measured 0.20; static 80
+    (ANIMAL3, "arcf-h"): 4.0,  # measured 0.49; static 78
+    (ANIMAL3, "arcf-hc"): 4.0,  # measured 0.18; static 79
+    (S0310, "arcf-h"): 5.0,  # measured 1.3; static 10.6
+    (S0310, "arcf-hc"): 6.0,  # measured 2.1 (36 of 40 frames <= 5 px: the 0.9 below); static 17.2
 }
 
 
@@ -163,13 +164,15 @@ def test_close_to_the_authors_published_boxes(case: Case, preset: str) -> None:
 
 
 def test_release_map_difference_has_the_published_magnitude() -> None:
-    """ARCF-H's per-frame map difference (release form: the spectral norm) is of the same order
-    as the authors' ``map_diff`` file. Measured: ours/theirs median ratio 0.70 on wakeboard7 (ours
-    is systematically ~25-30 % lower; see the report), so only the magnitude is checked."""
+    """ARCF-H's per-frame map difference in the release form (the largest singular value of the
+    element-wise absolute difference, ``norm(abs(D))``) matches the authors' ``map_diff`` file.
+    Measured on wakeboard7: ours/theirs median ratio 1.000004 (5 %-95 % of frames 0.74-1.06,
+    the spread from frames where the boxes drift apart); the signed difference's spectral norm
+    gives a median ratio of 0.67, which the bounds reject."""
     need_data(WAKEBOARD7)
     theirs = published(WAKEBOARD7, "arcf-h", "_map_diff")
     ours = np.array([r.aberrance_release for r in track(WAKEBOARD7, "arcf-h", "release")])
     assert ours.shape == theirs.shape
     assert ours[0] == 0.0 and theirs[0] == 0.0
     ratio = np.median(ours[1:] / theirs[1:])
-    assert 0.4 < ratio < 2.5, ratio
+    assert 0.9 < ratio < 1.1, ratio

@@ -234,10 +234,33 @@ def test_fractional_init_box_is_reported_close_to_the_input() -> None:
     box = (100.6, 80.3, 40.5, 30.7)
     for preset in PRESET_NAMES:
         got = make(preset).init(frames[0], box).box
-        # ARCF-H/BACF quantise to whole pixels as the release does; ARCF-HC keeps the box
+        # every preset quantises to whole pixels as the release does
         assert np.allclose(centres(got), centres(box), atol=1.0), (preset, got)
         assert np.allclose(got[2:], box[2:], atol=1.0), (preset, got)
-    assert make("arcf-hc").init(frames[0], box).box == pytest.approx(box)
+    # ARCF-HC's release rounds its boxes (MATLAB round): x = round(col - (w - 1) / 2), ...
+    assert make("arcf-hc").init(frames[0], box).box == (101.0, 80.0, 41.0, 31.0)
+    # ... and without that rounding the box comes back as given
+    got = make("arcf-hc", whole_pixel_boxes=False).init(frames[0], box).box
+    assert got == pytest.approx(box)
+
+
+@pytest.mark.parametrize("preset", PRESET_NAMES)
+def test_tracked_boxes_follow_the_release_quantisation(preset: str) -> None:
+    """ARCF-HC reports whole-pixel boxes on every frame (release); ARCF-H/BACF floor the size."""
+    frames, gt = scene(n=8, vel=(2.6, -1.7))
+    results = run(make(preset), frames, gt[0])
+    for r in results:
+        if preset == "arcf-hc":
+            assert all(v == round(v) for v in r.box), r.box
+        else:
+            assert r.box[2] == math.floor(r.box[2]) and r.box[3] == math.floor(r.box[3])
+    if preset == "arcf-hc":
+        raw = run(make(preset, whole_pixel_boxes=False), frames, gt[0])
+        assert any(v != round(v) for r in raw for v in r.box)
+        # the rounding only changes what is reported, never the tracking itself
+        for a, b in zip(results, raw, strict=True):
+            assert a.scale == b.scale and a.peak == b.peak
+            np.testing.assert_allclose(a.box, b.box, atol=0.5 + 1e-9)
 
 
 @pytest.mark.parametrize("preset", PRESET_NAMES)
@@ -373,6 +396,22 @@ def test_colour_and_gray_frames_may_be_mixed_after_init() -> None:
     t2.init(frames[0], gt[0])
     for f in g[1:]:
         assert math.isfinite(t2.update(f).peak)
+
+
+def test_colour_frames_are_converted_from_bgr_to_rgb() -> None:
+    """Frames arrive in OpenCV's BGR order; the features see RGB, as the release reads images
+    (fHOG's channel ties go to R, the Color Names index is R + 32 G + 1024 B)."""
+    frames, gt = scene(n=3)
+    t = make("arcf-h")
+    image, color = t._frame_for_init(frames[0])
+    assert color
+    np.testing.assert_array_equal(image, frames[0][..., ::-1])
+    t.init(frames[0], gt[0])
+    np.testing.assert_array_equal(t._frame_for_update(frames[1]), frames[1][..., ::-1])
+    # a gray stream converts later colour frames with the BGR weights
+    g = make("arcf-h")
+    g.init(gray(frames)[0], gt[0])
+    np.testing.assert_array_equal(g._frame_for_update(frames[1])[..., 0], gray(frames)[1])
 
 
 # --------------------------------------------------------------------------- image borders
@@ -647,7 +686,9 @@ def test_invalid_parameter_value_rejected_up_front(override: dict) -> None:
     [
         {"features": ()},
         {"admm_iterations": 2.5},
-        {"sampling": "foo"},
+        {"fhog_arithmetic": "foo"},
+        {"fhog_arithmetic": "Release"},
+        {"sampling": "eco"},  # removed: both trackers sample with BACF's get_pixels
         {"scale_mode": "foo"},
         {"sizing": "foo"},
     ],
@@ -687,18 +728,20 @@ def test_documented_preset_values() -> None:
         assert p.cell_size == 4 and p.search_area_scale == 5.0
         assert p.output_sigma_factor == 1 / 16
         assert p.aberrance == "paper"
+        assert p.fhog_arithmetic == "release"  # the toolbox's SSE approximations
+        assert not hasattr(p, "sampling")  # both trackers sample with get_pixels
     # ARCF-H: the release's values (paper: 5 iterations, 0.0192)
     assert ARCF_H.name == "arcf-h" and ARCF_H.features == ("fhog",)
     assert ARCF_H.admm_iterations == 2 and ARCF_H.learning_rate == 0.019
     assert ARCF_H.scale_mode == "search" and ARCF_H.n_scales == 5 and ARCF_H.scale_step == 1.01
     assert ARCF_H.newton_iterations == 50 and ARCF_H.round_translation is True
-    assert ARCF_H.sampling == "bacf" and ARCF_H.sizing == "filter_max_area"
+    assert ARCF_H.sizing == "filter_max_area" and ARCF_H.whole_pixel_boxes is False
     assert ARCF_H.filter_max_area == 2500
     # ARCF-HC
     assert ARCF_HC.name == "arcf-hc" and ARCF_HC.features == ("gray", "fhog", "cn")
     assert ARCF_HC.admm_iterations == 5 and ARCF_HC.learning_rate == 0.0192
     assert ARCF_HC.scale_mode == "filter" and ARCF_HC.newton_iterations == 5
-    assert ARCF_HC.round_translation is False and ARCF_HC.sampling == "eco"
+    assert ARCF_HC.round_translation is False and ARCF_HC.whole_pixel_boxes is True
     assert ARCF_HC.sizing == "sample_area"
     assert (ARCF_HC.min_image_sample_size, ARCF_HC.max_image_sample_size) == (150.0**2, 200.0**2)
     sf = ARCF_HC.scale_filter

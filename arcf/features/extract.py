@@ -23,7 +23,9 @@ class FeatureExtractor:
         cell: int,
         colornames_path: str | None,
         normalize: bool = False,
+        fhog_arithmetic: str = "release",
     ) -> None:
+        self.fhog_arithmetic = fhog_arithmetic
         self.kinds = kinds
         self.cell = cell
         self.normalize = normalize
@@ -42,11 +44,11 @@ class FeatureExtractor:
             self._cn = ColorNames(self._colornames_path)
 
     def __call__(self, patches: np.ndarray, color: bool) -> np.ndarray:
-        """(N, H, W, C) uint8 patches -> (N, D, H//cell, W//cell) float32 features."""
+        """(N, H, W, C) uint8 RGB patches -> (N, D, H//cell, W//cell) float32 features."""
         blocks = []
         for kind in self.active(color):
             if kind == "fhog":
-                blocks.append(fhog(patches, self.cell))
+                blocks.append(fhog(patches, self.cell, arithmetic=self.fhog_arithmetic))
             elif kind == "gray":
                 blocks.append(gray_features(patches, self.cell))
             elif kind == "cn":

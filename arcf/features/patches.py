@@ -18,12 +18,20 @@ def matlab_round(v: float) -> int:
 
 
 def resize_auto(patch: np.ndarray, out_hw: tuple[int, int]) -> np.ndarray:
-    """``mexResize(..., 'auto')``: area interpolation when shrinking, bilinear when enlarging."""
+    """The release's ``mexResize(patch, out_hw, 'auto')``: bilinear or area interpolation.
+
+    The rule is the release's, not "shrink means area": linear interpolation when the requested
+    number of *columns* exceeds the patch's number of *rows*, area otherwise. On the square
+    windows of the translation filters both rules agree; on the DSST scale filter's non-square
+    samples (e.g. a 48x22 window resized to 32x15) they do not, and which one is used decides
+    whether ARCF-HC's boxes match the release's on truck4_1 after frame 34 (reference notes,
+    detail 8).
+    """
     h, w = patch.shape[:2]
     oh, ow = out_hw
     if (h, w) == (oh, ow):
         return patch
-    interp = cv2.INTER_AREA if oh * ow < h * w else cv2.INTER_LINEAR
+    interp = cv2.INTER_LINEAR if ow > h else cv2.INTER_AREA
     out = cv2.resize(patch, (ow, oh), interpolation=interp)
     if out.ndim < patch.ndim:  # cv2 drops a trailing singleton channel
         out = out[..., None]
@@ -56,6 +64,10 @@ def bacf_patch(
 ) -> np.ndarray:
     """BACF's ``get_pixels``: a ``size`` window around ``pos`` resized to ``out_hw``.
 
+    Both trackers of the release sample this way (ARCF-HC too, although it is built on ECO's
+    code: it does not use ECO's ``sample_patch`` with its integer pre-decimation, whose windows
+    differ by up to 156 grey levels on boat1; reference notes, detail 6).
+
     1-based rows ``floor(pos) + (1..s) - floor(s/2)``, so the array index of the first row is
     ``floor(pos) - floor(s/2)``.
     """
@@ -63,36 +75,3 @@ def bacf_patch(
     top = math.floor(pos[0]) - sh // 2
     left = math.floor(pos[1]) - sw // 2
     return resize_auto(crop_replicate(image, top, left, sh, sw), out_hw)
-
-
-def eco_patch(
-    image: np.ndarray,
-    pos: tuple[float, float],
-    sample_hw: tuple[float, float],
-    out_hw: tuple[int, int],
-) -> np.ndarray:
-    """ECO's ``sample_patch`` (used by ARCF-HC): like :func:`bacf_patch` but it first decimates
-    the image by an integer factor when the window is more than ~2x the output, and centres with
-    ``floor((s+1)/2)``. The decimation is done on indices, without touching the whole image.
-    """
-    pr, pc = math.floor(pos[0]), math.floor(pos[1])
-    resize_factor = min(sample_hw[0] / out_hw[0], sample_hw[1] / out_hw[1])
-    df = max(math.floor(resize_factor - 0.1), 1)
-    sh_f, sw_f = sample_hw
-    ih, iw = image.shape[:2]
-    if df > 1:
-        osr, osc = (pr - 1) % df, (pc - 1) % df
-        pr, pc = (pr - 1 - osr) // df + 1, (pc - 1 - osc) // df + 1
-        sh_f, sw_f = sh_f / df, sw_f / df
-    sh, sw = max(matlab_round(sh_f), 2), max(matlab_round(sw_f), 2)
-    top = pr - (sh + 1) // 2  # 0-based index in the (possibly decimated) image
-    left = pc - (sw + 1) // 2
-    if df > 1:
-        n_r = len(range(osr, ih, df))
-        n_c = len(range(osc, iw, df))
-        rows = osr + df * np.clip(np.arange(top, top + sh), 0, n_r - 1)
-        cols = osc + df * np.clip(np.arange(left, left + sw), 0, n_c - 1)
-        patch = image[np.ix_(rows, cols)]
-    else:
-        patch = crop_replicate(image, top, left, sh, sw)
-    return resize_auto(patch, out_hw)
