@@ -155,6 +155,9 @@ class TrackerParams:
         for name in ("admm_iterations", "newton_iterations", "cell_size", "n_scales"):
             if not isinstance(getattr(self, name), int) or isinstance(getattr(self, name), bool):
                 problems.append(f"{name} must be an integer, got {getattr(self, name)!r}")
+        for name in ("round_translation", "whole_pixel_boxes", "normalize_features"):
+            if not isinstance(getattr(self, name), bool):
+                problems.append(f"{name} must be True or False, got {getattr(self, name)!r}")
         if not self.features:
             problems.append("features must name at least one of 'gray', 'fhog', 'cn'")
         if self.admm_iterations < 1:
