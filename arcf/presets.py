@@ -18,10 +18,10 @@ from dataclasses import dataclass, field
 from typing import Any, Literal
 
 from .errors import UnknownPresetError
+from .features.fhog import Arithmetic as FhogArithmetic
 
 AberranceMode = Literal["paper", "release"]
 ScaleMode = Literal["search", "filter"]
-FhogArithmetic = Literal["exact", "release"]
 SizingMode = Literal["filter_max_area", "sample_area"]
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .fhog import fhog
+from .fhog import Arithmetic, fhog
 from .pixel import ColorNames, gray_features
 
 CHANNELS = {"gray": 1, "fhog": 31, "cn": 10}
@@ -23,7 +23,7 @@ class FeatureExtractor:
         cell: int,
         colornames_path: str | None,
         normalize: bool = False,
-        fhog_arithmetic: str = "release",
+        fhog_arithmetic: Arithmetic = "release",
     ) -> None:
         self.fhog_arithmetic = fhog_arithmetic
         self.kinds = kinds
