@@ -1,0 +1,148 @@
+#!/usr/bin/env python3
+"""Prepare what an image build needs when no registry can be reached (air-gapped sites).
+
+Two inputs replace the network during ``docker build``:
+
+* a **base image** built from Debian packages with ``debootstrap --variant=minbase`` and
+  ``docker import`` (Debian bookworm: Python 3.11, the version the image is made for), where
+  ``python:3.11-slim-bookworm`` cannot be pulled;
+* a **wheelhouse** (``deploy/wheelhouse/``) with every Python package the image installs, for
+  the image's Python and CPU whatever the host runs, so that ``pip install --no-index`` inside
+  the build needs no index.
+
+Run on a machine that reaches PyPI and a Debian mirror (as root, for debootstrap); carry the
+wheelhouse and ``docker save arcf-base:bookworm`` to the site if it is elsewhere. Then::
+
+    python3 deploy/offline.py                    # base image (if missing) + wheelhouse
+    docker-compose -f deploy/compose.yaml -f deploy/compose.local.yaml -p arcf up -d --build
+
+Each step is skipped when its result is already there (``--force`` redoes it).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+import tomllib
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+WHEELHOUSE = ROOT / "deploy" / "wheelhouse"
+BASE_TAG = "arcf-base:bookworm"
+#: Debian bookworm's Python, which the Dockerfile's default base (python:3.11-slim) matches.
+PYTHON_VERSION = "3.11"
+#: python3-venv brings ensurepip (the image makes a virtualenv); passwd is in minbase already.
+BASE_PACKAGES = ("python3", "python3-venv", "ca-certificates")
+#: manylinux tags the image's glibc (2.36) accepts, newest first, per CPU.
+PLATFORMS = {
+    "x86_64": ("manylinux_2_34_x86_64", "manylinux_2_28_x86_64", "manylinux_2_17_x86_64",
+               "manylinux2014_x86_64"),
+    "aarch64": ("manylinux_2_34_aarch64", "manylinux_2_28_aarch64", "manylinux_2_17_aarch64",
+                "manylinux2014_aarch64"),
+}
+
+
+def log(msg: str) -> None:
+    print(f"[offline] {msg}", flush=True)
+
+
+def requirements() -> list[str]:
+    """What ``pip install .[service]`` needs: the build backend, the runtime dependencies and
+    the service extra, read from pyproject.toml (one list, no copy to keep in step)."""
+    meta = tomllib.loads((ROOT / "pyproject.toml").read_text())
+    project = meta["project"]
+    return ["pip", *meta["build-system"]["requires"], *project["dependencies"],
+            *project["optional-dependencies"]["service"]]
+
+
+def build_wheelhouse(dest: Path, machine: str, force: bool) -> None:
+    stamp = dest / ".requirements"
+    wanted = "\n".join([PYTHON_VERSION, machine, *requirements()])
+    if not force and stamp.is_file() and stamp.read_text() == wanted:
+        log(f"wheelhouse up to date: {dest}")
+        return
+    for old in dest.glob("*.whl"):
+        old.unlink()
+    dest.mkdir(parents=True, exist_ok=True)
+    cmd = [sys.executable, "-m", "pip", "download", "--disable-pip-version-check",
+           "--only-binary=:all:", "--python-version", PYTHON_VERSION,
+           "--implementation", "cp", "--dest", str(dest)]
+    for tag in PLATFORMS[machine]:
+        cmd += ["--platform", tag]
+    t0 = time.monotonic()
+    subprocess.run([*cmd, *requirements()], check=True)
+    stamp.write_text(wanted)
+    size = sum(p.stat().st_size for p in dest.glob("*.whl"))
+    log(f"wheelhouse: {len(list(dest.glob('*.whl')))} wheels, {size / 2**20:.0f} MiB, "
+        f"{time.monotonic() - t0:.0f} s")
+
+
+def image_exists(tag: str) -> bool:
+    return subprocess.run(["docker", "image", "inspect", tag], capture_output=True).returncode == 0
+
+
+def build_base(tag: str, mirror: str, suite: str, force: bool) -> None:
+    if not force and image_exists(tag):
+        log(f"base image present: {tag}")
+        return
+    if shutil.which("debootstrap") is None:
+        sys.exit("debootstrap not found: apt-get install debootstrap")
+    if os.geteuid() != 0:
+        sys.exit("debootstrap needs root")
+    t0 = time.monotonic()
+    with tempfile.TemporaryDirectory(prefix="arcf-rootfs-", dir="/var/tmp") as tmp:
+        rootfs = Path(tmp) / "rootfs"
+        subprocess.run(["debootstrap", "--variant=minbase", f"--include={','.join(BASE_PACKAGES)}",
+                        suite, str(rootfs), mirror], check=True, stdout=subprocess.DEVNULL)
+        # what an image does not need: package lists and caches, documentation
+        for sub in ("var/lib/apt/lists", "var/cache/apt", "usr/share/doc", "usr/share/man",
+                    "usr/share/locale"):
+            path = rootfs / sub
+            if path.is_dir():
+                shutil.rmtree(path)
+                path.mkdir()
+        (rootfs / "var/lib/apt/lists/partial").mkdir(parents=True)
+        tar = subprocess.Popen(["tar", "-C", str(rootfs), "--numeric-owner", "-c", "."],
+                               stdout=subprocess.PIPE)
+        subprocess.run(["docker", "import",
+                        "--change", "ENV LANG=C.UTF-8",
+                        "--change", "ENV PATH=/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin",
+                        "--change", 'CMD ["/bin/bash"]',
+                        "--message", f"debootstrap --variant=minbase {suite} + "
+                                     f"{' '.join(BASE_PACKAGES)}",
+                        "-", tag], stdin=tar.stdout, check=True, stdout=subprocess.DEVNULL)
+        assert tar.stdout is not None
+        tar.stdout.close()
+        if tar.wait() != 0:
+            sys.exit("tar of the root filesystem failed")
+    log(f"base image {tag} built in {time.monotonic() - t0:.0f} s")
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("steps", nargs="*", choices=["base", "wheels"], default=[],
+                    help="what to prepare (default: both)")
+    ap.add_argument("--base-tag", default=BASE_TAG)
+    ap.add_argument("--mirror", default="http://deb.debian.org/debian")
+    ap.add_argument("--suite", default="bookworm")
+    ap.add_argument("--wheelhouse", type=Path, default=WHEELHOUSE)
+    ap.add_argument("--machine", default=platform.machine(), choices=sorted(PLATFORMS),
+                    help="CPU of the image (default: this machine's)")
+    ap.add_argument("--force", action="store_true", help="redo steps already done")
+    args = ap.parse_args(argv)
+    steps = args.steps or ["base", "wheels"]
+    if "wheels" in steps:
+        build_wheelhouse(args.wheelhouse, args.machine, args.force)
+    if "base" in steps:
+        build_base(args.base_tag, args.mirror, args.suite, args.force)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
