@@ -29,8 +29,9 @@ import subprocess
 import sys
 import tempfile
 import time
-import tomllib
 from pathlib import Path
+
+import tomllib
 
 ROOT = Path(__file__).resolve().parent.parent
 WHEELHOUSE = ROOT / "deploy" / "wheelhouse"
@@ -39,6 +40,7 @@ BASE_TAG = "arcf-base:bookworm"
 PYTHON_VERSION = "3.11"
 #: python3-venv brings ensurepip (the image makes a virtualenv); passwd is in minbase already.
 BASE_PACKAGES = ("python3", "python3-venv", "ca-certificates")
+IMAGE_PATH = "/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin"
 #: manylinux tags the image's glibc (2.36) accepts, newest first, per CPU.
 PLATFORMS = {
     "x86_64": ("manylinux_2_34_x86_64", "manylinux_2_28_x86_64", "manylinux_2_17_x86_64",
@@ -112,7 +114,7 @@ def build_base(tag: str, mirror: str, suite: str, force: bool) -> None:
                                stdout=subprocess.PIPE)
         subprocess.run(["docker", "import",
                         "--change", "ENV LANG=C.UTF-8",
-                        "--change", "ENV PATH=/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin",
+                        "--change", f"ENV PATH={IMAGE_PATH}",
                         "--change", 'CMD ["/bin/bash"]',
                         "--message", f"debootstrap --variant=minbase {suite} + "
                                      f"{' '.join(BASE_PACKAGES)}",
@@ -126,7 +128,7 @@ def build_base(tag: str, mirror: str, suite: str, force: bool) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("steps", nargs="*", choices=["base", "wheels"], default=[],
+    ap.add_argument("steps", nargs="*", metavar="{base,wheels}",
                     help="what to prepare (default: both)")
     ap.add_argument("--base-tag", default=BASE_TAG)
     ap.add_argument("--mirror", default="http://deb.debian.org/debian")
@@ -137,6 +139,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--force", action="store_true", help="redo steps already done")
     args = ap.parse_args(argv)
     steps = args.steps or ["base", "wheels"]
+    if unknown := set(steps) - {"base", "wheels"}:
+        ap.error(f"unknown step(s): {', '.join(sorted(unknown))}")
     if "wheels" in steps:
         build_wheelhouse(args.wheelhouse, args.machine, args.force)
     if "base" in steps:

@@ -1,0 +1,210 @@
+"""Container figures: image sizes, build time, and failover of the compose stack.
+
+    python benchmarks/containers.py                 # ~4 min with a warm wheelhouse
+    python benchmarks/containers.py --cold          # also a build without the layer cache
+
+Builds what an air-gapped site builds (``deploy/offline.py``: Debian base and wheelhouse, then
+``compose.yaml`` + ``compose.local.yaml``), brings the stack up on 127.0.0.1 ports with one
+worker per instance, and runs the failover trials of ``benchmarks/scaleout.py`` against the
+containers: paced streams of a real sequence through the router's published port, then per
+trial ``docker kill`` of the instance owning most streams (its streams resume on the other),
+``docker-compose start`` of it (it takes its share back), and ``docker pause`` (a frozen
+container, found out by the Zenoh lease), then ``docker unpause``. Prints Markdown for
+``docs/benchmarks.md`` §9 and leaves nothing running.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from collections import defaultdict
+from pathlib import Path
+from statistics import median
+from types import SimpleNamespace
+from typing import Any
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+import threading  # noqa: E402
+
+from scaleout import Fleet, gaps  # noqa: E402
+
+from arcf.data import data_root  # noqa: E402
+from arcf.eval import load_dataset  # noqa: E402
+from service.cluster import owner  # noqa: E402
+from service.procs import free_port  # noqa: E402
+
+DEPLOY = ROOT / "deploy"
+INSTANCES = ("arcf-1", "arcf-2")
+
+
+class Compose:
+    def __init__(self, project: str, env: dict[str, str]) -> None:
+        self.project, self.env = project, env
+
+    def __call__(self, *args: str, timeout: float = 1800) -> str:
+        cmd = ["docker-compose", "-f", str(DEPLOY / "compose.yaml"), "-f",
+               str(DEPLOY / "compose.local.yaml"), "-p", self.project, *args]
+        out = subprocess.run(cmd, env=self.env, capture_output=True, text=True, timeout=timeout)
+        if out.returncode != 0:
+            raise RuntimeError(f"{' '.join(args)}: {out.stderr[-2000:]}")
+        return out.stdout
+
+    def container(self, service: str) -> str:
+        return self("ps", "-q", service).strip()
+
+    def health(self, service: str) -> str:
+        out = subprocess.run(["docker", "inspect", "--format", "{{.State.Health.Status}}",
+                              self.container(service)], capture_output=True, text=True)
+        return out.stdout.strip()
+
+    def wait_healthy(self, services: tuple[str, ...], timeout: float = 120) -> float:
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < timeout:
+            if all(self.health(s) == "healthy" for s in services):
+                return time.monotonic() - t0
+            time.sleep(0.5)
+        raise RuntimeError(f"{services} not healthy within {timeout} s")
+
+
+class ContainerFleet(Fleet):
+    """scaleout.Fleet's streams and measurements, with the compose stack as the instances."""
+
+    def __init__(self, args: argparse.Namespace, seq: Any, router_port: int) -> None:
+        self.args = args
+        self.seq = seq
+        self.frames = [p.read_bytes() for p in seq.frames]
+        self.router = SimpleNamespace(endpoint=f"tcp/127.0.0.1:{router_port}",
+                                      stop=lambda: None)
+        self.instances = {}
+        self.results: dict[str, list[tuple[Any, float]]] = defaultdict(list)
+        self.lock = threading.Lock()
+        self.stop = threading.Event()
+        self.client = None
+
+
+def trials(args: argparse.Namespace, compose: Compose, router_port: int) -> list[dict[str, Any]]:
+    seq = load_dataset("uav123_10fps", sequences=["truck4_1"])[0]
+    fleet = ContainerFleet(args, seq, router_port)
+    rows = []
+    try:
+        streams = fleet.start_streams()
+        time.sleep(4.0)
+        for trial in range(args.trials):
+            for how in ("kill", "pause"):
+                victim = max(INSTANCES, key=lambda i: sum(owner(n, INSTANCES) == i
+                                                         for n in streams))
+                owned = [n for n in streams if owner(n, INSTANCES) == victim]
+                others = [n for n in streams if n not in owned]
+                cid = compose.container(victim)
+                t0 = time.monotonic()
+                subprocess.run(["docker", how, cid], check=True, capture_output=True)
+                found = fleet.resumed_after(owned, t0, timeout=15)
+                time.sleep(1.5)
+                rows.append({"trial": trial, "event": f"docker {how}", "streams_moved": len(owned),
+                             "resumed": len(found),
+                             "failover_ms": [1e3 * (found[n] - t0) for n in owned if n in found],
+                             "handovers": [fleet.handover(n, found[n]) for n in owned
+                                           if n in found],
+                             "other_streams_gaps": sum(gaps(fleet.results[n], t0 - 1.0,
+                                                            time.monotonic()) for n in others)})
+                print(json.dumps(rows[-1]), file=sys.stderr)
+                t0 = time.monotonic()
+                if how == "kill":
+                    compose("start", victim)
+                else:
+                    subprocess.run(["docker", "unpause", cid], check=True, capture_output=True)
+                found = fleet.resumed_after(owned, t0, timeout=60)
+                time.sleep(1.5)
+                rows.append({"trial": trial, "event": "start" if how == "kill" else "unpause",
+                             "streams_moved": len(owned), "resumed": len(found),
+                             "failover_ms": [1e3 * (found[n] - t0) for n in owned if n in found],
+                             "handovers": [fleet.handover(n, found[n]) for n in owned
+                                           if n in found],
+                             "other_streams_gaps": sum(gaps(fleet.results[n], t0,
+                                                            time.monotonic()) for n in others)})
+                print(json.dumps(rows[-1]), file=sys.stderr)
+                compose.wait_healthy(INSTANCES)
+    finally:
+        fleet.close()
+    return rows
+
+
+def image_mb(tag: str) -> float:
+    out = subprocess.run(["docker", "image", "inspect", "--format", "{{.Size}}", tag],
+                         capture_output=True, text=True, check=True)
+    return int(out.stdout.strip()) / 1e6
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--trials", type=int, default=3)
+    ap.add_argument("--streams", type=int, default=6)
+    ap.add_argument("--fps", type=float, default=5.0)
+    ap.add_argument("--preset", default="arcf-h")
+    ap.add_argument("--max-seconds", type=float, default=300.0)
+    ap.add_argument("--cold", action="store_true", help="also time a build without cache")
+    args = ap.parse_args()
+    t0 = time.monotonic()
+    subprocess.run([sys.executable, str(DEPLOY / "offline.py")], check=True)
+    prepare_s = time.monotonic() - t0
+    router_port, prometheus_port = free_port(), free_port()
+    env = dict(os.environ, ARCF_PUBLISH_ADDRESS="127.0.0.1", ARCF_ROUTER_PORT=str(router_port),
+               ARCF_PROMETHEUS_PORT=str(prometheus_port), ARCF_DATA=str(data_root()),
+               ARCF_WORKERS_PER_INSTANCE="1", ARCF_VERSION="bench")
+    compose = Compose(f"arcfbench{os.getpid()}", env)
+    builds = {}
+    if args.cold:
+        t0 = time.monotonic()
+        compose("build", "--no-cache", "arcf-1")
+        builds["service image, no layer cache, wheelhouse ready"] = time.monotonic() - t0
+    (ROOT / "arcf" / ".build-stamp").write_text(str(time.time()))  # a code edit
+    try:
+        t0 = time.monotonic()
+        compose("build", "arcf-1")
+        builds["service image after a code edit (wheel layer cached)"] = time.monotonic() - t0
+    finally:
+        (ROOT / "arcf" / ".build-stamp").unlink()
+    t0 = time.monotonic()
+    compose("build")
+    builds["whole stack, cached"] = time.monotonic() - t0
+    try:
+        t0 = time.monotonic()
+        compose("up", "-d")
+        compose.wait_healthy(INSTANCES)
+        up_s = time.monotonic() - t0
+        rows = trials(args, compose, router_port)
+    finally:
+        compose("down", "-v", "--remove-orphans", timeout=300)
+    print(f"machine: {os.cpu_count()} cores; prepare (base + wheelhouse, warm): {prepare_s:.0f} s;"
+          f" up to both healthy: {up_s:.0f} s\n")
+    print("| image | size (MB) |\n| --- | --- |")
+    for tag in ("arcf-base:bookworm", "arcf-service:bench", "arcf-prometheus:bench"):
+        print(f"| {tag} | {image_mb(tag):.0f} |")
+    print("\n| build | seconds |\n| --- | --- |")
+    for name, secs in builds.items():
+        print(f"| {name} | {secs:.0f} |")
+    print("\n| event | trials | streams moved | resumed | event to first resumed result, ms: "
+          "median / max | frames lost per moved stream: median / max | gaps on the other "
+          "streams |\n| --- | --- | --- | --- | --- | --- | --- |")
+    for event in ("docker kill", "start", "docker pause", "unpause"):
+        sel = [r for r in rows if r["event"] == event]
+        if not sel:
+            continue
+        ms = [v for r in sel for v in r["failover_ms"]] or [float("nan")]
+        lost = [h[0] for r in sel for h in r["handovers"]] or [float("nan")]
+        print(f"| {event} | {len(sel)} | {sum(r['streams_moved'] for r in sel)} | "
+              f"{sum(r['resumed'] for r in sel)} | {median(ms):.0f} / {max(ms):.0f} | "
+              f"{median(lost):.0f} / {max(lost):.0f} | "
+              f"{sum(r['other_streams_gaps'] for r in sel)} |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,336 @@
+"""The deployment for real: images built, the compose stack up, containers killed.
+
+Opt-in by marker (``docker``) and by what the machine has: the module runs where a Docker engine
+answers (``.ci/run`` installs Debian's ``docker.io`` and starts ``dockerd``) and is skipped with
+the reason otherwise; ``ARCF_DOCKER_TESTS=0`` skips it anyway. Registries are out of reach
+here, so it builds what an air-gapped site builds: the Debian base and the wheelhouse
+(``deploy/offline.py``), then the stack with ``deploy/compose.local.yaml``. Every published port
+is bound to 127.0.0.1.
+
+Checked: both service instances healthy by their own HEALTHCHECK, non-root on a read-only root
+filesystem; a client on the host tracks a real sequence through the router's published port,
+with the boxes of the library run in-process; Prometheus (Debian's, built here) scrapes both;
+``docker kill`` of one instance moves its streams to the other, resumed from their last box,
+while the other streams run on without a gap, and the restarted instance takes its share back;
+``docker-compose down`` leaves no container, network or volume behind.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import os
+import shutil
+import subprocess
+import sys
+import threading
+import time
+import urllib.parse
+import urllib.request
+from collections import defaultdict
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+pytest.importorskip("zenoh")
+
+from service_harness import free_port
+
+import arcf
+from arcf.data import data_root
+from arcf.eval import load_dataset
+from service.client import TrackingClient
+from service.cluster import owner
+
+ROOT = Path(__file__).resolve().parent.parent
+DEPLOY = ROOT / "deploy"
+INSTANCES = ("arcf-1", "arcf-2")
+
+
+def _engine_problem() -> str | None:
+    if os.environ.get("ARCF_DOCKER_TESTS") == "0":
+        return "ARCF_DOCKER_TESTS=0"
+    if shutil.which("docker") is None or shutil.which("docker-compose") is None:
+        return "docker / docker-compose not installed (.ci/run installs docker.io, docker-compose)"
+    try:
+        out = subprocess.run(["docker", "info", "--format", "{{.ServerVersion}}"],
+                             capture_output=True, text=True, timeout=20)
+    except subprocess.TimeoutExpired:
+        return "docker info timed out"
+    if out.returncode != 0:
+        return f"no Docker engine answers (start dockerd): {out.stderr.strip()[:200]}"
+    if not (data_root() / "uav123_10fps").is_dir():
+        return "needs ../shared/data"
+    return None
+
+
+_PROBLEM = _engine_problem()
+pytestmark = [pytest.mark.docker, pytest.mark.skipif(_PROBLEM is not None,
+                                                     reason=_PROBLEM or "")]
+
+
+@dataclass
+class Stack:
+    project: str
+    env: dict[str, str]
+    router_port: int
+    prometheus_port: int
+    build_s: float
+
+    def compose(self, *args: str, timeout: float = 600) -> subprocess.CompletedProcess[str]:
+        cmd = ["docker-compose", "-f", str(DEPLOY / "compose.yaml"),
+               "-f", str(DEPLOY / "compose.local.yaml"), "-p", self.project, *args]
+        out = subprocess.run(cmd, env=self.env, capture_output=True, text=True, timeout=timeout)
+        assert out.returncode == 0, f"{' '.join(args)}: {out.stdout[-3000:]}{out.stderr[-3000:]}"
+        return out
+
+    def container(self, service: str) -> str:
+        return self.compose("ps", "-q", service).stdout.strip()
+
+    def inspect(self, service: str) -> dict[str, Any]:
+        cid = self.container(service)
+        out = subprocess.run(["docker", "inspect", cid], capture_output=True, text=True,
+                             check=True)
+        return json.loads(out.stdout)[0]
+
+    def health(self, service: str) -> str:
+        return self.inspect(service)["State"].get("Health", {}).get("Status", "none")
+
+    def wait_healthy(self, services: tuple[str, ...], timeout: float = 120) -> None:
+        deadline = time.monotonic() + timeout
+        status = {s: "" for s in services}
+        while time.monotonic() < deadline:
+            status = {s: self.health(s) for s in services}
+            if all(v == "healthy" for v in status.values()):
+                return
+            time.sleep(1.0)
+        raise AssertionError(f"not healthy within {timeout:.0f} s: {status}")
+
+    def prometheus(self, path: str, **query: str) -> Any:
+        url = f"http://127.0.0.1:{self.prometheus_port}{path}"
+        if query:
+            url += "?" + urllib.parse.urlencode(query)
+        with urllib.request.urlopen(url, timeout=5) as response:
+            body = json.load(response)
+        assert body["status"] == "success", body
+        return body["data"]
+
+    def leftovers(self) -> dict[str, list[str]]:
+        label = f"label=com.docker.compose.project={self.project}"
+        found = {}
+        for kind, cmd in (("containers", ["docker", "ps", "-aq"]),
+                          ("networks", ["docker", "network", "ls", "-q"]),
+                          ("volumes", ["docker", "volume", "ls", "-q"])):
+            out = subprocess.run([*cmd, "--filter", label], capture_output=True, text=True,
+                                 check=True)
+            found[kind] = out.stdout.split()
+        return found
+
+
+@pytest.fixture(scope="module")
+def stack() -> Iterator[Stack]:
+    # what an air-gapped site prepares: the Debian base image and the wheelhouse
+    prep = subprocess.run([sys.executable, str(DEPLOY / "offline.py")], capture_output=True,
+                          text=True, timeout=1200)
+    assert prep.returncode == 0, prep.stdout[-3000:] + prep.stderr[-3000:]
+    env = dict(os.environ)
+    router_port, prometheus_port = free_port(), free_port()
+    env.update(ARCF_PUBLISH_ADDRESS="127.0.0.1", ARCF_ROUTER_PORT=str(router_port),
+               ARCF_PROMETHEUS_PORT=str(prometheus_port), ARCF_DATA=str(data_root()),
+               ARCF_WORKERS_PER_INSTANCE="1", ARCF_VERSION="test")
+    s = Stack(f"arcftest{os.getpid()}", env, router_port, prometheus_port, 0.0)
+    t0 = time.monotonic()
+    s.compose("build", timeout=1800)
+    s.build_s = time.monotonic() - t0
+    try:
+        s.compose("up", "-d")
+        yield s
+    finally:
+        subprocess.run(["docker-compose", "-f", str(DEPLOY / "compose.yaml"), "-f",
+                        str(DEPLOY / "compose.local.yaml"), "-p", s.project, "down", "-v",
+                        "--remove-orphans"], env=env, capture_output=True, timeout=300)
+
+
+def test_instances_healthy_nonroot_readonly(stack: Stack) -> None:
+    stack.wait_healthy(("arcf-1", "arcf-2", "prometheus"))
+    image = json.loads(subprocess.run(["docker", "image", "inspect", "arcf-service:test"],
+                                      capture_output=True, text=True, check=True).stdout)[0]
+    print(f"arcf-service image {image['Size'] / 1e6:.0f} MB, stack built in {stack.build_s:.0f} s")
+    for service in INSTANCES:
+        info = stack.inspect(service)
+        assert info["Config"]["User"] == "10001:10001"
+        assert info["HostConfig"]["ReadonlyRootfs"] is True
+        assert info["HostConfig"]["CapDrop"] == ["ALL"]
+        cid = info["Id"]
+        uid = subprocess.run(["docker", "exec", cid, "id", "-u"], capture_output=True,
+                             text=True, check=True).stdout.strip()
+        assert uid == "10001"
+        write = subprocess.run(["docker", "exec", cid, "touch", "/opt/arcf/x"],
+                               capture_output=True, text=True)
+        assert write.returncode != 0 and "Read-only file system" in write.stderr
+        # nothing to build with, nothing left from the build in the runtime image
+        probe = subprocess.run(["docker", "exec", cid, "sh", "-c",
+                                "ls /opt/arcf/bin/pip /wheelhouse /src 2>&1; exit 0"],
+                               capture_output=True, text=True)
+        assert probe.stdout.count("No such file") == 3, probe.stdout
+
+
+def _collect(client: TrackingClient, streams: list[str]) -> tuple[dict[str, list], Any, list]:
+    results: dict[str, list[tuple[Any, float]]] = defaultdict(list)
+    lock = threading.Lock()
+    subs = []
+    for name in streams:
+        def on_result(r: Any, name: str = name) -> None:
+            with lock:
+                results[name].append((r, time.monotonic()))
+        subs.append(client.results(name, callback=on_result))
+    return results, lock, subs
+
+
+def test_host_client_tracks_a_real_sequence_through_the_router(stack: Stack) -> None:
+    """Every frame of truck4_1 answered in order, with the boxes of the library in-process."""
+    seq = load_dataset("uav123_10fps", sequences=["truck4_1"])[0]
+    reference = arcf.create_tracker("bacf")
+    expected = [reference.init(seq.read_frame(0), seq.init_box).box]
+    expected += [reference.update(seq.read_frame(i)).box for i in range(1, len(seq))]
+    client = TrackingClient(connect=[f"tcp/127.0.0.1:{stack.router_port}"])
+    try:
+        assert sorted(client.status().instances) == list(INSTANCES)
+        results, lock, _subs = _collect(client, ["cam-host"])
+        client.start("cam-host", seq.init_box, preset="bacf", session_id="s-host", frame_seq=0)
+        t0 = time.monotonic()
+        for i, path in enumerate(seq.frames):  # bounded: one pass at 15 fps
+            client.publish_frame("cam-host", data=path.read_bytes(), seq=i)
+            time.sleep(max(0.0, t0 + (i + 1) / 15 - time.monotonic()))
+        deadline = time.monotonic() + 20
+        while time.monotonic() < deadline:
+            with lock:
+                if len(results["cam-host"]) >= len(seq):
+                    break
+            time.sleep(0.1)
+        with lock:
+            got = {r.frame_seq: r for r, _ in results["cam-host"]}
+    finally:
+        client.close()
+    assert sorted(got) == list(range(len(seq))), "frames without a result"
+    boxes = np.array([got[i].box for i in range(len(seq))])
+    centre = lambda b: b[:, :2] + b[:, 2:] / 2  # noqa: E731
+    dist = np.linalg.norm(centre(boxes) - centre(np.array(expected)), axis=1)
+    assert dist.max() <= 0.5, f"container boxes leave the library's by {dist.max():.2f} px"
+    assert all(got[i].status.value == "tracking" for i in range(1, len(seq)))
+
+
+def test_prometheus_scrapes_both_instances(stack: Stack) -> None:
+    deadline = time.monotonic() + 30
+    health: dict[str, str] = {}
+    while time.monotonic() < deadline:
+        targets = stack.prometheus("/api/v1/targets")["activeTargets"]
+        health = {t["labels"]["instance"]: t["health"] for t in targets
+                  if t["labels"]["job"] == "arcf-service"}
+        if sorted(health) == list(INSTANCES) and set(health.values()) == {"up"}:
+            break
+        time.sleep(1.0)
+    assert health == dict.fromkeys(INSTANCES, "up")
+    # the previous test's frames were counted and scraped (5 s interval)
+    deadline = time.monotonic() + 20
+    total = 0.0
+    while time.monotonic() < deadline and total <= 0:
+        data = stack.prometheus("/api/v1/query", query="sum(arcf_frames_processed_total)")
+        total = float(data["result"][0]["value"][1]) if data["result"] else 0.0
+        time.sleep(1.0)
+    assert total > 0
+
+
+def _gaps(results: list[tuple[Any, float]], t0: float, t1: float) -> int:
+    seqs = sorted({r.frame_seq for r, t in results if t0 <= t <= t1})
+    return sum(b - a - 1 for a, b in itertools.pairwise(seqs))
+
+
+def _first_resumed(results: dict[str, list], lock: Any, names: list[str], after: float,
+                   timeout: float) -> dict[str, float]:
+    deadline = time.monotonic() + timeout
+    found: dict[str, float] = {}
+    while time.monotonic() < deadline and len(found) < len(names):
+        with lock:
+            for n in names:
+                hit = [t for r, t in results[n] if r.status.value == "resumed" and t > after]
+                if hit:
+                    found[n] = min(hit)
+        time.sleep(0.05)
+    return found
+
+
+def test_docker_kill_moves_streams_and_the_instance_comes_back(stack: Stack) -> None:
+    candidates = ([f"cam-{start + k}" for k in range(4)] for start in range(0, 10000, 5))
+    names = next(ns for ns in candidates if [owner(n, INSTANCES) for n in ns].count("arcf-2") == 2)
+    victim = [n for n in names if owner(n, INSTANCES) == "arcf-2"]
+    others = [n for n in names if n not in victim]
+    seq = load_dataset("uav123_10fps", sequences=["truck4_1"])[0]
+    frames = [p.read_bytes() for p in seq.frames]
+    client = TrackingClient(connect=[f"tcp/127.0.0.1:{stack.router_port}"])
+    stop = threading.Event()
+    try:
+        results, lock, _subs = _collect(client, names)
+        for name in names:
+            client.start(name, seq.init_box, preset="bacf", session_id=f"s-{name}",
+                         frame_seq=0)
+
+        def publish() -> None:
+            t0 = time.monotonic()
+            for i in range(600):  # bounded: 2 minutes at 5 fps
+                if stop.is_set():
+                    return
+                for name in names:
+                    client.publish_frame(name, data=frames[i % len(frames)], seq=i)
+                time.sleep(max(0.0, t0 + (i + 1) / 5 - time.monotonic()))
+
+        publisher = threading.Thread(target=publish, daemon=True)
+        publisher.start()
+        time.sleep(4.0)
+        with lock:
+            assert all(results[n] for n in names), "a stream without results before the kill"
+
+        t_kill = time.monotonic()
+        subprocess.run(["docker", "kill", stack.container("arcf-2")], check=True,
+                       capture_output=True, timeout=30)
+        resumed = _first_resumed(results, lock, victim, t_kill, timeout=15)
+        assert sorted(resumed) == sorted(victim), "streams of the killed container not resumed"
+        failover_s = max(resumed.values()) - t_kill
+        time.sleep(2.0)
+        with lock:
+            for n in others:
+                assert _gaps(results[n], t_kill - 1.0, time.monotonic()) == 0, n
+                assert not any(r.status.value == "resumed" for r, _ in results[n]), n
+            for n in victim:
+                after = [r for r, t in results[n] if t > resumed[n]]
+                assert len(after) >= 5 and all(r.status.value == "tracking" for r in after[1:])
+
+        # the killed container is started again (as its restart policy or an operator would)
+        # and takes its streams back; the survivor's own streams never notice
+        state = stack.inspect("arcf-2")["State"]
+        t_back = time.monotonic()
+        if not state["Running"]:
+            stack.compose("start", "arcf-2")
+        returned = _first_resumed(results, lock, victim, t_back, timeout=60)
+        assert sorted(returned) == sorted(victim), "the restarted instance took nothing back"
+        time.sleep(2.0)
+        with lock:
+            for n in others:
+                assert _gaps(results[n], t_back, time.monotonic()) == 0, n
+        stack.wait_healthy(("arcf-1", "arcf-2"))
+        print(f"docker kill: streams resumed on the survivor after {failover_s * 1e3:.0f} ms "
+              f"(restarted by its policy: {state['Running']}); taken back "
+              f"{max(returned.values()) - t_back:.1f} s after the restart")
+    finally:
+        stop.set()
+        client.close()
+
+
+def test_compose_down_leaves_nothing(stack: Stack) -> None:
+    assert all(stack.leftovers().values())  # the stack is there...
+    stack.compose("down", "-v", "--remove-orphans", timeout=300)
+    assert stack.leftovers() == {"containers": [], "networks": [], "volumes": []}
