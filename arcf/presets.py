@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 from typing import Any, Literal
 
 from .errors import UnknownPresetError
-from .features.fhog import Arithmetic as FhogArithmetic
+from .features.fhog import ArithmeticMode as FhogArithmetic
 
 AberranceMode = Literal["paper", "release"]
 ScaleMode = Literal["search", "filter"]
@@ -94,6 +94,12 @@ class TrackerParams:
     #: An approximation rather than a choice of the authors, hence an option (reference notes,
     #: detail 2).
     fhog_arithmetic: FhogArithmetic = "release"
+    #: A CPU's SSE tables (the output of ``tools/sse_approx_dump.c``): the release arithmetic
+    #: then replays that CPU's ``RSQRTPS`` / ``RCPPS`` bit for bit instead of modelling the AMD
+    #: EPYC that traced the release (None). Their last bits decide orientation bins near
+    #: boundaries, and so whether ARCF-H follows a given run of the release (docs/benchmarks.md
+    #: §2). A path on the host: a library user's setting, refused in service requests.
+    fhog_sse_table: str | None = None
     #: Scale each feature sample to unit mean energy per element, as ECO/STRCF's
     #: ``extract_features`` does (``normalize_power = 2``, ``normalize_size``, ``normalize_dim``).
     #: Off in every preset, as the reference notes describe the release; measured as an
@@ -155,6 +161,11 @@ class TrackerParams:
         for name in ("admm_iterations", "newton_iterations", "cell_size", "n_scales"):
             if not isinstance(getattr(self, name), int) or isinstance(getattr(self, name), bool):
                 problems.append(f"{name} must be an integer, got {getattr(self, name)!r}")
+        if self.fhog_sse_table is not None:
+            if not isinstance(self.fhog_sse_table, str) or not self.fhog_sse_table:
+                problems.append("fhog_sse_table must be a file path or None")
+            elif self.fhog_arithmetic != "release":
+                problems.append("fhog_sse_table needs fhog_arithmetic='release'")
         for name in ("round_translation", "whole_pixel_boxes", "normalize_features"):
             if not isinstance(getattr(self, name), bool):
                 problems.append(f"{name} must be True or False, got {getattr(self, name)!r}")
@@ -216,6 +227,10 @@ ARCF_HC = TrackerParams(
 BACF = dataclasses.replace(ARCF_H, name="bacf", gamma=0.0)
 
 PRESETS: dict[str, TrackerParams] = {p.name: p for p in (ARCF_H, ARCF_HC, BACF)}
+
+#: Parameters that name files on the host. A library user sets them; a service must not let a
+#: remote request choose which of its files a tracker reads.
+HOST_PARAMETERS = frozenset({"fhog_sse_table"})
 
 
 def make_params(preset: str | TrackerParams, **overrides: Any) -> TrackerParams:

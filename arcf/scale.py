@@ -7,9 +7,10 @@ import math
 import numpy as np
 import scipy.fft as sfft
 
+from .features.fhog import Arithmetic as FhogArithmetic
 from .features.fhog import fhog
 from .features.patches import crop_replicate, resize_auto
-from .presets import FhogArithmetic, ScaleFilterParams
+from .presets import ScaleFilterParams
 
 
 def search_scale_factors(n_scales: int, step: float) -> np.ndarray:

@@ -26,9 +26,11 @@ import scipy.fft as sfft
 
 from .aberrance import map_difference, paper_target, peak_index, release_target, shift_to
 from .admm import Crop, solve_filter
-from .errors import InvalidBoxError, InvalidFrameError, NotInitializedError
+from .errors import InvalidBoxError, InvalidFrameError, NotInitializedError, UnknownPresetError
 from .features.extract import FeatureExtractor
+from .features.fhog import Arithmetic as FhogArithmetic
 from .features.patches import bacf_patch, matlab_round
+from .features.sse import load_sse_tables
 from .fourier import gaussian_label, hann2d, newton_peak, peak_to_sidelobe, spatial_response
 from .presets import TrackerParams, make_params
 from .scale import DSSTScaleFilter, scale_limits, search_scale_factors
@@ -76,6 +78,13 @@ class ARCFTracker:
         self._initialized = False
         #: Paper formulation (or γ = 0): filters are real in space, half spectra suffice.
         self._hermitian = params.aberrance == "paper" or params.gamma == 0
+        #: fHOG's arithmetic: the preset's mode, or a CPU's measured SSE tables replayed.
+        self._fhog_arithmetic: FhogArithmetic = params.fhog_arithmetic
+        if params.fhog_sse_table is not None:
+            try:
+                self._fhog_arithmetic = load_sse_tables(params.fhog_sse_table)
+            except (OSError, ValueError) as exc:
+                raise UnknownPresetError(f"fhog_sse_table: {exc}") from exc
 
     # ------------------------------------------------------------------ public API
     @property
@@ -110,7 +119,7 @@ class ARCFTracker:
             self._cell,
             self._colornames_path,
             self.params.normalize_features,
-            self.params.fhog_arithmetic,
+            self._fhog_arithmetic,
         )
         self._extractor.prepare(color)
         self._window = hann2d(self._use_sz)
@@ -217,7 +226,7 @@ class ARCFTracker:
         self._finish_configuration(base, csf, (float(support), float(support)))
         self._scale_factors = np.ones(1)
         sf = p.scale_filter
-        self._scale_filter = DSSTScaleFilter(sf, (float(h), float(w)), p.fhog_arithmetic)
+        self._scale_filter = DSSTScaleFilter(sf, (float(h), float(w)), self._fhog_arithmetic)
         self._min_scale, self._max_scale = scale_limits(
             sf.scale_step, (support, support), self._base_target_sz, self._image_hw
         )

@@ -91,36 +91,6 @@ def install_variant(seed: int, what: str) -> None:
     fhog._release_rsqrt, fhog._release_rcp = rsqrt, rcp
 
 
-def install_table(path: str) -> None:
-    """Replay a CPU's measured RSQRTPS / RCPPS (``tools/sse_approx_dump.c``) in this process."""
-    import arcf.features.fhog as fhog
-
-    tables = {"rsqrt": np.zeros(8192, np.int64), "rcp": np.zeros(4096, np.int64)}
-    with open(path) as lines:
-        for line in lines:
-            if not line.startswith("#"):
-                name, k, bits = line.split()
-                tables[name][int(k)] = int(bits, 16)
-
-    def rsqrt(x: np.ndarray, out: np.ndarray) -> np.ndarray:
-        bits = np.ascontiguousarray(x, np.float32).view(np.uint32).astype(np.int64)
-        e = (bits >> 23) - 127  # unbiased exponent (inputs are >= 0: 4 m2)
-        parity = e & 1
-        res = tables["rsqrt"][(parity << 12) | ((bits >> 11) & 0xFFF)] - (((e - parity) // 2) << 23)
-        out.view(np.uint32)[...] = res.astype(np.uint32).reshape(out.shape)
-        out[np.asarray(x) == 0] = np.inf
-        return out
-
-    def rcp(x: np.ndarray, out: np.ndarray) -> np.ndarray:
-        bits = np.ascontiguousarray(x, np.float32).view(np.uint32).astype(np.int64)
-        e = (bits >> 23) - 127
-        res = tables["rcp"][(bits >> 11) & 0xFFF] - (e << 23)
-        out.view(np.uint32)[...] = res.astype(np.uint32).reshape(out.shape)
-        return out
-
-    fhog._release_rsqrt, fhog._release_rcp = rsqrt, rcp
-
-
 def replay(job: tuple[str, str, int, str, str]) -> tuple[str, str, int, int | None, float, int]:
     """A whole release-mode run: first frame > 0.5 px from the release's box, mean distance."""
     preset, sequence, variant, what, table = job
@@ -129,14 +99,14 @@ def replay(job: tuple[str, str, int, str, str]) -> tuple[str, str, int, int | No
     import arcf
 
     cv2.setNumThreads(1)
-    if variant == TABLE:
-        install_table(table)
-    elif variant >= 0:
+    if variant >= 0:
         install_variant(variant, what)
     (seq,) = load_dataset(SEQUENCES[sequence], sequences=[sequence])
     ref = read_results(data_root() / "reference_release" / "boxes" / RELEASE_NAMES[preset]
                        / f"{sequence}.txt")
-    overrides = {} if preset == "bacf" else {"aberrance": "release"}
+    overrides: dict[str, str] = {} if preset == "bacf" else {"aberrance": "release"}
+    if variant == TABLE:
+        overrides["fhog_sse_table"] = table
     tracker = arcf.create_tracker(preset, **overrides)
     boxes = [tracker.init(seq.read_frame(0), seq.init_box).box]
     boxes += [tracker.update(seq.read_frame(i)).box for i in range(1, len(seq))]
@@ -152,7 +122,8 @@ def main() -> int:
     ap.add_argument("--all", action="store_true", help="all 27 (preset, sequence) runs")
     ap.add_argument("--variants", type=int, default=12, help="random variants per run")
     ap.add_argument("--what", choices=("orientation", "both"), default="orientation")
-    ap.add_argument("--table", help="also replay a CPU's measured table (tools/sse_approx_dump.c)")
+    ap.add_argument("--table", help="also replay a CPU's measured tables (tools/sse_approx_dump.c "
+                    "output) through the preset option fhog_sse_table")
     ap.add_argument("--workers", type=int, default=2)
     args = ap.parse_args()
     if args.all:

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from arcf import ARCFError, make_params
-from arcf.presets import PRESETS
+from arcf.presets import HOST_PARAMETERS, PRESETS
 
 from .cluster import Cluster, owner, weight
 
@@ -300,6 +300,10 @@ class ControlPlane:
         if req.preset.lower().replace("_", "-") not in PRESETS:
             raise _Refused("unknown_preset", f"unknown preset {req.preset!r}; choose one of "
                            f"{', '.join(sorted(PRESETS))}")
+        host_only = sorted(set(req.overrides) & HOST_PARAMETERS)
+        if host_only:
+            raise _Refused("invalid_parameter", f"{', '.join(host_only)} names a file on the "
+                           "service's host; a request cannot set it")
         try:
             make_params(req.preset, **dict(req.overrides))
         except ARCFError as exc:

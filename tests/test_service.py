@@ -130,6 +130,12 @@ def test_control_errors_are_clear(service) -> None:
         with pytest.raises(ServiceError) as e:
             client.start("s", (10, 10, 20, 20), preset="arcf-h", overrides={"gamma": -1})
         assert e.value.code == "invalid_parameter"
+        # A parameter that names a file on the host is the operator's, not a request's: the
+        # service must not read /etc/passwd (or anything else) because a client asked.
+        with pytest.raises(ServiceError) as e:
+            client.start("s", (10, 10, 20, 20), preset="arcf-h",
+                         overrides={"fhog_sse_table": "/etc/passwd"})
+        assert e.value.code == "invalid_parameter" and "fhog_sse_table" in str(e.value)
         with pytest.raises(ValueError):  # the SDK refuses it before sending ...
             client.start("s", (10, 10, 0, 20), preset="arcf-h")
         # ... and the service refuses it too when a client sends it anyway

@@ -689,6 +689,9 @@ def test_invalid_parameter_value_rejected_up_front(override: dict) -> None:
         {"admm_iterations": 2.5},
         {"fhog_arithmetic": "foo"},
         {"fhog_arithmetic": "Release"},
+        {"fhog_sse_table": ""},
+        {"fhog_sse_table": 3},
+        {"fhog_sse_table": "tables.txt", "fhog_arithmetic": "exact"},
         {"sampling": "eco"},  # removed: both trackers sample with BACF's get_pixels
         {"scale_mode": "foo"},
         {"sizing": "foo"},

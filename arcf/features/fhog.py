@@ -51,11 +51,15 @@ from typing import Literal
 import cv2
 import numpy as np
 
-__all__ = ["Arithmetic", "fhog", "fhog_num_channels"]
+from .sse import SSETables
+
+__all__ = ["Arithmetic", "ArithmeticMode", "fhog", "fhog_num_channels"]
 
 #: ``fhog``'s arithmetic: exact gradient magnitude and orientation, or the authors' release's
-#: approximations (SSE reciprocal square root, acos lookup table).
-Arithmetic = Literal["exact", "release"]
+#: approximations (SSE reciprocal square root, acos lookup table) with the SSE instructions
+#: either modelled (``"release"``) or replayed from a CPU's measured tables (``SSETables``).
+ArithmeticMode = Literal["exact", "release"]
+Arithmetic = ArithmeticMode | SSETables
 
 #: Weight of the 4 texture (gradient-energy) channels, as in the toolbox (~ 1 / sqrt(18)).
 _TEXTURE_WEIGHT = np.float32(0.2357)
@@ -123,6 +127,10 @@ def fhog(
             Only RGB channel order reproduces the release (it reads images as RGB; BGR changes
             ~15 % of all values by > 1e-3, max 0.4, because of the tie rule above).
 
+            An :class:`~arcf.features.sse.SSETables`: the release arithmetic with a CPU's own
+            ``RSQRTPS`` / ``RCPPS`` replayed bit for bit from the tables that
+            ``tools/sse_approx_dump.c`` measured on it, instead of the model.
+
     Returns:
         float32 array ``(..., H // cell_size, W // cell_size, 3 * n_orients + 4)`` (31 channels for
         ``n_orients=9``): channels ``0 .. 2n-1`` contrast-sensitive orientations (bin ``o`` is
@@ -159,9 +167,12 @@ def fhog(
         raise ValueError("fhog: need cell_size >= 1 and 1 <= n_orients <= 100")
     if x.dtype.kind not in "uifb":
         raise TypeError(f"fhog: unsupported dtype {x.dtype}")
-    if arithmetic not in ("exact", "release"):
-        raise ValueError(f"fhog: arithmetic must be 'exact' or 'release', got {arithmetic!r}")
-    release = arithmetic == "release"
+    tables = arithmetic if isinstance(arithmetic, SSETables) else None
+    if tables is None and arithmetic not in ("exact", "release"):
+        raise ValueError(
+            f"fhog: arithmetic must be 'exact', 'release' or SSETables, got {arithmetic!r}"
+        )
+    release = arithmetic != "exact"
 
     height, width, channels = x.shape[-3:]
     hb, wb = height // cell_size, width // cell_size
@@ -180,7 +191,7 @@ def fhog(
         # R1 and (filled later) R2, orientation-major: (3n, N * hb * wb).
         r = _scratch("r", (3 * n_orients, n_chunk * hb * wb), np.float32)
         r1 = r[: 2 * n_orients].reshape(2 * n_orients, n_chunk, hb, wb)
-        _histogram(gx, gy, mag2, cell_size, n_orients, out=r1, release=release)
+        _histogram(gx, gy, mag2, cell_size, n_orients, out=r1, release=release, tables=tables)
         dst = out[i : i + n_chunk].reshape(n_chunk * hb * wb, n_out)
         _normalise(r, n_chunk, hb, wb, cell_size, n_orients, clip, out=dst)
     return out.reshape(*lead, hb, wb, n_out)
@@ -520,7 +531,12 @@ def _release_bin_table(n_orients: int) -> np.ndarray:
 
 
 def _release_orientation(
-    gx: np.ndarray, gy: np.ndarray, mag2: np.ndarray, n_orients: int, plane: int
+    gx: np.ndarray,
+    gy: np.ndarray,
+    mag2: np.ndarray,
+    n_orients: int,
+    plane: int,
+    tables: SSETables | None = None,
 ) -> np.ndarray:
     """Flat orientation-plane offset (int32, ``N * h0 * w0``) of every pixel, release arithmetic.
 
@@ -530,10 +546,12 @@ def _release_orientation(
     ``Gx = gx * _m * 10000`` (float32, in that order), Gx's sign flipped where gy's *sign bit*
     is set (so ``gy = -0.0`` flips too), ``i = (int) Gx`` (truncation), ``O = a[i]``, plus
     ``PI`` where ``gy < 0`` (false for -0.0).  Since ``(2 gx) * (_m / 2) == gx * _m`` exactly,
-    every rounding is the toolbox's.
+    every rounding is the toolbox's.  ``rsqrt`` is the model (``_release_rsqrt``) or, with
+    ``tables``, the measured instruction (exact for ``4 m2`` too: it scales with the exponent).
     """
     shape = gx.shape
-    half_m = _release_rsqrt(mag2, out=mag2)
+    rsqrt = _release_rsqrt if tables is None else tables.rsqrt_into
+    half_m = rsqrt(mag2, out=mag2)
     np.minimum(half_m, _HALF_RSQRT_CAP, out=half_m)
     t = _scratch("rel_t", shape, np.float32)
     np.multiply(gx, half_m, out=t)
@@ -564,8 +582,10 @@ def _release_plane_offsets(n_orients: int, plane: int) -> np.ndarray:
     return offsets
 
 
-def _release_magnitude(half_m: np.ndarray) -> np.ndarray:
+def _release_magnitude(half_m: np.ndarray, tables: SSETables | None = None) -> np.ndarray:
     """``2 M = 2 rcp(_m) = rcp(_m / 2)``, in place (input: ``_release_orientation``'s output)."""
+    if tables is not None:
+        return tables.rcp_into(half_m, out=half_m)
     return _release_rcp(half_m, out=half_m)
 
 
@@ -652,12 +672,14 @@ def _histogram(
     n_orients: int,
     out: np.ndarray,
     release: bool = False,
+    tables: SSETables | None = None,
 ) -> None:
     """Toolbox ``gradHist`` (hard orientation, bilinear spatial) into ``out`` ``(2n, N, hb, wb)``.
 
     Orientation-major ("planar") so that the normalisation can broadcast over whole planes.
     ``mag2`` is overwritten.  ``release`` selects the toolbox's approximate magnitude and
-    acos-table orientation (see ``_release_orientation``) instead of the exact ones.
+    acos-table orientation (see ``_release_orientation``) instead of the exact ones, with the
+    SSE instructions replayed from ``tables`` if given, else modelled.
     """
     n_img, h0, w0 = gx.shape
     hb, wb = h0 // cell, w0 // cell
@@ -670,8 +692,8 @@ def _histogram(
 
     if release:
         # Flat index of each pixel's orientation plane straight from the acos-table key.
-        start = _release_orientation(gx, gy, mag2, n_orients, plane)
-        mag = _release_magnitude(mag2).reshape(n_img, h0 * w0)  # 2 * M
+        start = _release_orientation(gx, gy, mag2, n_orients, plane, tables)
+        mag = _release_magnitude(mag2, tables).reshape(n_img, h0 * w0)  # 2 * M
     else:
         # Flat index of each pixel's orientation plane (via the code -> bin table).
         _, table = _orientation_tables(n_orients)
