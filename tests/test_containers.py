@@ -262,6 +262,20 @@ def _gaps(results: list[tuple[Any, float]], t0: float, t1: float) -> int:
     return sum(b - a - 1 for a, b in itertools.pairwise(seqs))
 
 
+def _assert_flowing(results: list[tuple[Any, float]], t0: float, t1: float, name: str) -> None:
+    """A stream the failover does not concern keeps flowing from ``t0`` to ``t1``.
+
+    Everything here shares this machine's 2 cores: when the survivor takes over the killed
+    instance's sessions, or the restarted instance boots next to it, the survivor's own streams
+    may shed a few frames (newest frame wins; each skipped frame is reported in the next
+    result's ``dropped``): docs/benchmarks.md §9 measured 1-8 per event with one worker per
+    instance, as here. More than that, or a stall, is a failure.
+    """
+    assert _gaps(results, t0, t1) <= 8, f"{name}: more frames shed than a failover explains"
+    times = [t for _, t in results if t0 <= t <= t1]
+    assert len(times) >= 2 and max(b - a for a, b in itertools.pairwise(times)) < 2.5, name
+
+
 def _first_resumed(results: dict[str, list], lock: Any, names: list[str], after: float,
                    timeout: float) -> dict[str, float]:
     deadline = time.monotonic() + timeout
@@ -315,7 +329,7 @@ def test_docker_kill_moves_streams_and_the_instance_comes_back(stack: Stack) -> 
         time.sleep(2.0)
         with lock:
             for n in others:
-                assert _gaps(results[n], t_kill - 1.0, time.monotonic()) == 0, n
+                _assert_flowing(results[n], t_kill - 1.0, time.monotonic(), n)
                 assert not any(r.status.value == "resumed" for r, _ in results[n]), n
             for n in victim:
                 after = [r for r, t in results[n] if t > resumed[n]]
@@ -332,13 +346,7 @@ def test_docker_kill_moves_streams_and_the_instance_comes_back(stack: Stack) -> 
         time.sleep(2.0)
         with lock:
             for n in others:
-                # Both containers share this machine's 2 cores, and the restarting one boots
-                # (imports, worker pool) next to the survivor's 4 streams: the survivor may shed
-                # a frame or two (newest frame wins; each gap is reported in ``dropped``), but
-                # at most a second's worth, and its streams never stall.
-                assert _gaps(results[n], t_back, time.monotonic()) <= 5, n
-                times = [t for _, t in results[n] if t >= t_back]
-                assert max(b - a for a, b in itertools.pairwise(times)) < 2.0, n
+                _assert_flowing(results[n], t_back, time.monotonic(), n)
         stack.wait_healthy(("arcf-1", "arcf-2"))
         print(f"docker kill: streams resumed on the survivor after {failover_s * 1e3:.0f} ms "
               f"(restarted by its policy: {state['Running']}); taken back "
