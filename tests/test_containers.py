@@ -38,7 +38,7 @@ import pytest
 
 pytest.importorskip("zenoh")
 
-from service_harness import free_port
+from service_harness import first_resumed, free_port, gaps
 
 import arcf
 from arcf.data import data_root
@@ -257,11 +257,6 @@ def test_prometheus_scrapes_both_instances(stack: Stack) -> None:
     assert total > 0
 
 
-def _gaps(results: list[tuple[Any, float]], t0: float, t1: float) -> int:
-    seqs = sorted({r.frame_seq for r, t in results if t0 <= t <= t1})
-    return sum(b - a - 1 for a, b in itertools.pairwise(seqs))
-
-
 def _assert_flowing(results: list[tuple[Any, float]], t0: float, t1: float, name: str) -> None:
     """A stream the failover does not concern keeps flowing from ``t0`` to ``t1``.
 
@@ -271,23 +266,9 @@ def _assert_flowing(results: list[tuple[Any, float]], t0: float, t1: float, name
     result's ``dropped``): docs/benchmarks.md §9 measured 1-8 per event with one worker per
     instance, as here. More than that, or a stall, is a failure.
     """
-    assert _gaps(results, t0, t1) <= 8, f"{name}: more frames shed than a failover explains"
+    assert gaps(results, t0, t1) <= 8, f"{name}: more frames shed than a failover explains"
     times = [t for _, t in results if t0 <= t <= t1]
     assert len(times) >= 2 and max(b - a for a, b in itertools.pairwise(times)) < 2.5, name
-
-
-def _first_resumed(results: dict[str, list], lock: Any, names: list[str], after: float,
-                   timeout: float) -> dict[str, float]:
-    deadline = time.monotonic() + timeout
-    found: dict[str, float] = {}
-    while time.monotonic() < deadline and len(found) < len(names):
-        with lock:
-            for n in names:
-                hit = [t for r, t in results[n] if r.status.value == "resumed" and t > after]
-                if hit:
-                    found[n] = min(hit)
-        time.sleep(0.05)
-    return found
 
 
 def test_docker_kill_moves_streams_and_the_instance_comes_back(stack: Stack) -> None:
@@ -323,7 +304,7 @@ def test_docker_kill_moves_streams_and_the_instance_comes_back(stack: Stack) -> 
         t_kill = time.monotonic()
         subprocess.run(["docker", "kill", stack.container("arcf-2")], check=True,
                        capture_output=True, timeout=30)
-        resumed = _first_resumed(results, lock, victim, t_kill, timeout=15)
+        resumed = first_resumed(results, lock, victim, t_kill, timeout=15)
         assert sorted(resumed) == sorted(victim), "streams of the killed container not resumed"
         failover_s = max(resumed.values()) - t_kill
         time.sleep(2.0)
@@ -341,7 +322,7 @@ def test_docker_kill_moves_streams_and_the_instance_comes_back(stack: Stack) -> 
         t_back = time.monotonic()
         if not state["Running"]:
             stack.compose("start", "arcf-2")
-        returned = _first_resumed(results, lock, victim, t_back, timeout=60)
+        returned = first_resumed(results, lock, victim, t_back, timeout=60)
         assert sorted(returned) == sorted(victim), "the restarted instance took nothing back"
         time.sleep(2.0)
         with lock:

@@ -7,7 +7,6 @@ without interrupting the rest; a frozen instance (SIGSTOP) is found out by the Z
 
 from __future__ import annotations
 
-import itertools
 import os
 import signal
 import threading
@@ -21,7 +20,7 @@ import pytest
 
 pytest.importorskip("zenoh")
 
-from service_harness import RouterProcess, ServiceProcess
+from service_harness import RouterProcess, ServiceProcess, first_resumed, gaps
 
 from arcf.data import data_root
 from arcf.eval import load_dataset
@@ -46,12 +45,6 @@ def pick_streams() -> list[str]:
         if all(three.count(i) == 2 for i in IDS) and four.count("inst-d") >= 2:
             return names
     raise AssertionError("no stream names found")
-
-
-def gaps(results: list[tuple[Any, float]], t0: float, t1: float) -> int:
-    """Frames with no result among those whose results arrived between t0 and t1."""
-    seqs = sorted({r.frame_seq for r, t in results if t0 <= t <= t1})
-    return sum(b - a - 1 for a, b in itertools.pairwise(seqs))
 
 
 def test_instances_share_streams_fail_over_and_rebalance() -> None:
@@ -107,15 +100,7 @@ def test_instances_share_streams_fail_over_and_rebalance() -> None:
         t_kill = time.monotonic()
         instances["inst-b"].proc.send_signal(signal.SIGKILL)
         instances["inst-b"].proc.wait(timeout=10)
-        deadline = t_kill + 10
-        resumed_at: dict[str, float] = {}
-        while time.monotonic() < deadline and len(resumed_at) < len(victim):
-            with lock:
-                for n in victim:
-                    hit = [t for r, t in results[n] if r.status.value == "resumed" and t > t_kill]
-                    if hit:
-                        resumed_at[n] = min(hit)
-            time.sleep(0.05)
+        resumed_at = first_resumed(results, lock, victim, t_kill, timeout=10)
         assert sorted(resumed_at) == sorted(victim), "streams of the killed instance not resumed"
         failover_s = max(resumed_at.values()) - t_kill
         assert failover_s < 5.0
