@@ -49,6 +49,7 @@ from functools import lru_cache
 from typing import Literal
 
 import cv2
+import numba
 import numpy as np
 
 from .sse import SSETables
@@ -713,23 +714,8 @@ def _histogram(
         out.reshape(-1)[start] = mag.reshape(-1)
     else:
         index, w_top, w_bottom = _voting_layout(n_img, hb, wb, cell)
-        np.add(start, index, out=start)  # + first target cell; int32: cheap
-        key = _scratch("key", (npix,), np.intp)
-        np.copyto(key, start)  # np.add.at is fastest with intp indices
-
-        # Complex votes: real part -> left target column, imaginary part -> right one; the
-        # two target rows are two scatters, the second one shifted by one accumulator row.
-        votes = _scratch("votes", (n_img, h0 * w0), np.complex64)
-        acc = _scratch("acc", (size + wb + 2,), np.complex64)
-        acc.view(np.float64).fill(0.0)
-        for row_offset, weights in ((0, w_top), (wb + 1, w_bottom)):
-            np.multiply(mag, weights, out=votes)
-            np.add.at(acc[row_offset:], key, votes.reshape(-1))
-
-        # Cell (i, j) = real part at padded (i + 1, j + 1) + imaginary part at (i + 1, j).
-        total = _scratch("total", (size,), np.float32)
-        np.add(acc.real[1 : size + 1], acc.imag[:size], out=total)
-        np.copyto(out, total.reshape(n_bins, n_img, hb + 1, wb + 1)[:, :, 1:, :wb])
+        acc = _scratch("acc", (2, size + wb + 2), np.float32)
+        _vote(start, index, mag.reshape(-1), w_top, w_bottom, wb, acc, out)
     # Border cells only collect 7/8 of an interior cell's weight: rescale them, sequentially
     # like the toolbox, so a single row / column gets the factor twice.
     s = np.float32(8.0 / 7.0)
@@ -741,6 +727,41 @@ def _histogram(
         out[:, :, :, :: wb - 1] *= s  # first and last column
     else:
         out *= s * s
+
+
+@numba.njit(cache=True, nogil=True, boundscheck=False)
+def _vote(start, index, mag, w_top, w_bottom, wb, acc, out):  # pragma: no cover - compiled
+    """Bilinear spatial voting of every pixel's ``2 M`` into its orientation plane.
+
+    ``start`` (int32, N h0 w0): the pixel's orientation-plane offset; ``index``: its first
+    target cell in the padded ``(N, hb + 1, wb + 1)`` plane (``_voting_layout``); ``w_top`` /
+    ``w_bottom`` (complex64, h0 w0): the weights of the first / second target row, left column
+    in the real part, right column in the imaginary part. ``acc`` (2, plane size + wb + 2) is
+    scratch: left- and right-column votes. Every accumulator cell receives its votes in pixel
+    order, first row's pass before the second row's, so each float32 sum is rounded exactly as
+    the earlier ``np.add.at`` formulation rounded it. Writes ``out`` ``(2n, N, hb, wb)``.
+    """
+    npix = start.shape[0]
+    hw = w_top.shape[0]
+    left, right = acc[0], acc[1]
+    left[:] = 0.0
+    right[:] = 0.0
+    for row_offset, weights in ((0, w_top), (wb + 1, w_bottom)):
+        for p in range(npix):
+            k = start[p] + index[p] + row_offset
+            w = weights[p % hw]
+            m = mag[p]
+            left[k] += m * w.real
+            right[k] += m * w.imag
+    n_bins, n_img, hb, _ = out.shape
+    plane = n_img * (hb + 1) * (wb + 1)
+    # Cell (i, j) = left votes at padded (i + 1, j + 1) + right votes at padded (i + 1, j).
+    for o in range(n_bins):
+        for i in range(n_img):
+            for y in range(hb):
+                base = o * plane + (i * (hb + 1) + y + 1) * (wb + 1)
+                for x in range(wb):
+                    out[o, i, y, x] = left[base + x + 1] + right[base + x]
 
 
 # --------------------------------------------------------------------------------------------
@@ -762,57 +783,72 @@ def _normalise(
 
     ``out`` is a contiguous ``(N * hb * wb, 3n + 4)`` float32 array (channels last).
 
-    ``r[:2n]`` holds R1 on entry; ``r[2n:]`` is filled with R2 here.  The 1/2 of the
-    orientation channels is folded into the normalisers and the clip value (exact: a power of
-    two), which saves a pass.
+    ``r[:2n]`` holds R1 on entry; ``r[2n:]`` is scratch. The 1/2 of the orientation channels
+    is folded into the normalisers and the clip value (exact: a power of two), which saves a
+    multiplication per value.
     """
-    n = n_orients
-    n_bins = 2 * n
-    cells = n_img * hb * wb
-    np.add(r[:n], r[n:n_bins], out=r[n_bins:])  # R2: contrast-insensitive (o and o + n merged)
-    r2 = r[n_bins:]
-    energy = np.einsum("kp,kp->p", r2, r2).reshape(n_img, hb, wb)
-
-    # Sums over 2x2 blocks of cells (1-wide "blocks" if there is a single row / column).
-    if hb > 1:
-        energy = energy[:, :-1] + energy[:, 1:]
-    if wb > 1:
-        energy = energy[:, :, :-1] + energy[:, :, 1:]
     eps = np.float32(1e-4) / 4 / cell / cell / cell / cell
-    block = np.float32(0.5) / np.sqrt(energy + eps)  # halved normalisers
-    # Edge-pad by one cell on every side -> (N, hb + 1, wb + 1).
-    nbr, nbc = block.shape[1:]
-    norm = _scratch("norm", (n_img, hb + 1, wb + 1), np.float32)
-    norm[:, 1 : nbr + 1, 1 : nbc + 1] = block
-    norm[:, 0] = norm[:, 1]
-    norm[:, nbr + 1 :] = norm[:, nbr : nbr + 1]
-    norm[:, :, 0] = norm[:, :, 1]
-    norm[:, :, nbc + 1 :] = norm[:, :, nbc : nbc + 1]
-    normalisers = (
-        norm[:, 1:, 1:],  # the block whose top-left cell is this cell
-        norm[:, :-1, 1:],  # the block one row up
-        norm[:, 1:, :-1],  # one column left
-        norm[:, :-1, :-1],  # up-left
-    )
+    half_clip = np.float32(0.5 * float(np.float32(clip)))
+    texture = np.float32(2.0) * _TEXTURE_WEIGHT
+    _normalise_cells(r.reshape(3 * n_orients, n_img, hb, wb), n_orients, eps, half_clip,
+                     texture, out.reshape(n_img, hb, wb, -1))
 
-    planar = _scratch("planar", (3 * n + 4, cells), np.float32)
-    acc = planar[: 3 * n]
-    tmp = _scratch("tmp", (3 * n, cells), np.float32)
-    nk_flat = _scratch("nk", (1, cells), np.float32)
-    nk_rows = _scratch("nk_rows", (3 * n, cells), np.float32)
-    half_clip = 0.5 * float(np.float32(clip))
-    for k, nk in enumerate(normalisers):
-        np.copyto(nk_flat.reshape(n_img, hb, wb), nk)
-        # min(R * n_k, clip) / 2, in OpenCV: numpy's broadcasting multiply and np.minimum
-        # are 2-3x slower on these shapes.  The first term goes straight into the sum.
-        t = acc if k == 0 else tmp
-        cv2.repeat(nk_flat, 3 * n, 1, nk_rows)
-        cv2.multiply(r, nk_rows, t)
-        cv2.threshold(t, half_clip, half_clip, cv2.THRESH_TRUNC, t)
-        cv2.reduce(t[:n_bins], 0, cv2.REDUCE_SUM, planar[3 * n + k : 3 * n + k + 1])
-        if k > 0:
-            cv2.add(acc, tmp, acc)
-    planar[3 * n :] *= np.float32(2.0) * _TEXTURE_WEIGHT
-    transposed = cv2.transpose(planar, out)  # channels last, written in place
-    if transposed is not out:  # cannot happen for a matching contiguous float32 array
-        np.copyto(out, transposed)
+
+@numba.njit(cache=True, nogil=True, boundscheck=False)
+def _normalise_cells(r, n, eps, half_clip, texture, out):  # pragma: no cover - compiled
+    """``_normalise``'s kernel, cell by cell.
+
+    R2 = R1[o] + R1[o + n]; each 2x2 block's energy is the float32 sum of its cells' squared
+    R2 (summed in channel order, then the two rows, then the two columns); its halved
+    normaliser ``0.5 / sqrt(energy + eps)``; blocks at the border are replicated (a 1-wide
+    grid uses 1-wide "blocks"). Each output channel is ``sum_k min(R n_k, clip / 2)`` over the
+    four blocks touching the cell, in the toolbox's order, and each texture channel ``k`` the
+    sum over the 2n sensitive orientations of block ``k``'s truncated terms, times
+    ``2 * 0.2357``. Every float32 operation is the one the earlier NumPy/OpenCV version made,
+    in the same order, so the features are identical bit for bit.
+    """
+    n_bins = 2 * n
+    _, n_img, hb, wb = r.shape
+    nbr = hb - 1 if hb > 1 else hb
+    nbc = wb - 1 if wb > 1 else wb
+    energy = np.empty((hb, wb), np.float32)
+    rows = np.empty((nbr, wb), np.float32)
+    block = np.empty((nbr, nbc), np.float32)
+    terms = np.empty(3 * n, np.float32)
+    for i in range(n_img):
+        for y in range(hb):
+            for x in range(wb):
+                e = np.float32(0.0)
+                for o in range(n):
+                    v = r[o, i, y, x] + r[o + n, i, y, x]
+                    r[n_bins + o, i, y, x] = v
+                    e += v * v
+                energy[y, x] = e
+        for y in range(nbr):
+            for x in range(wb):
+                rows[y, x] = energy[y, x] + energy[y + 1, x] if hb > 1 else energy[y, x]
+        for y in range(nbr):
+            for x in range(nbc):
+                e = rows[y, x] + rows[y, x + 1] if wb > 1 else rows[y, x]
+                block[y, x] = np.float32(0.5) / np.sqrt(e + eps)
+        for y in range(hb):
+            for x in range(wb):
+                # The block starting at this cell, one row up, one column left, up-left.
+                y0, y1 = min(y, nbr - 1), min(max(y - 1, 0), nbr - 1)
+                x0, x1 = min(x, nbc - 1), min(max(x - 1, 0), nbc - 1)
+                for k in range(4):
+                    nk = block[y1 if k & 1 else y0, x1 if k & 2 else x0]
+                    tex = np.float32(0.0)
+                    for c in range(3 * n):
+                        t = r[c, i, y, x] * nk
+                        if t > half_clip:
+                            t = half_clip
+                        if k == 0:
+                            terms[c] = t
+                        else:
+                            terms[c] = terms[c] + t
+                        if c < n_bins:
+                            tex = t if c == 0 else tex + t
+                    out[i, y, x, 3 * n + k] = tex * texture
+                for c in range(3 * n):
+                    out[i, y, x, c] = terms[c]

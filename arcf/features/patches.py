@@ -11,6 +11,8 @@ import math
 import cv2
 import numpy as np
 
+from .resize import resize_area
+
 
 def matlab_round(v: float) -> int:
     """MATLAB's ``round``: halves away from zero (Python's ``round`` goes to even)."""
@@ -31,8 +33,9 @@ def resize_auto(patch: np.ndarray, out_hw: tuple[int, int]) -> np.ndarray:
     oh, ow = out_hw
     if (h, w) == (oh, ow):
         return patch
-    interp = cv2.INTER_LINEAR if ow > h else cv2.INTER_AREA
-    out = cv2.resize(patch, (ow, oh), interpolation=interp)
+    if ow <= h:
+        return resize_area(patch, out_hw)
+    out = cv2.resize(patch, (ow, oh), interpolation=cv2.INTER_LINEAR)
     if out.ndim < patch.ndim:  # cv2 drops a trailing singleton channel
         out = out[..., None]
     return out

@@ -1,0 +1,142 @@
+"""OpenCV's ``INTER_AREA`` shrink, bit for bit, without its store-to-load dependency chain.
+
+The release samples every window with ``mexResize`` (OpenCV's ``resize``), and ARCF-H cuts six
+windows per frame; on a large target each is a ~1100x1100 crop shrunk to 200x200, 5-6 ms apiece
+in OpenCV, half of the tracker's time (docs/benchmarks.md §3). OpenCV's area path
+(``ResizeArea_Invoker``) is scalar code whose inner statement ``buf[dx] += S[sx] * alpha``
+re-reads the value it stored one iteration earlier, so it runs at the latency of a store, a load
+and an add per source pixel and channel.
+
+This module computes the same sums in the same order with the same float32 roundings, so the
+result is identical (checked against ``cv2.resize`` in tests/test_resize.py): each
+destination column's partial sum lives in a register while its source pixels are added, and
+several source rows are summed side by side so that the additions of different rows overlap.
+Only the non-integer shrink is done here; integer ratios (OpenCV's separate integer "fast area"
+path) and enlargements go to ``cv2.resize`` unchanged.
+
+OpenCV's algorithm (``computeResizeAreaTab`` + ``ResizeArea_Invoker``), with ``scale = src /
+dst`` in double precision: destination pixel ``d`` covers source interval ``[d scale, (d + 1)
+scale)``; each source pixel it touches gets weight ``overlap / min(scale, src - d scale)``,
+rounded to float32. Rows: every source row is first reduced horizontally (float32 sums of
+``pixel * weight`` in increasing source column), then the destination row is ``beta_1 row_1``
+plus ``beta_2 row_2`` ... (float32, in increasing source row), and finally rounded half to even
+and saturated to 0..255.
+"""
+
+from __future__ import annotations
+
+import math
+from functools import lru_cache
+
+import cv2
+import numba
+import numpy as np
+
+__all__ = ["resize_area"]
+
+_DBL_EPSILON = 2.220446049250313e-16
+
+
+
+@lru_cache(maxsize=256)
+def _area_table(src: int, dst: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``computeResizeAreaTab`` for one axis, grouped by destination pixel.
+
+    Returns ``start`` (int64, ``dst + 1``): destination pixel ``d`` reads table entries
+    ``start[d] .. start[d + 1] - 1``; ``index`` (int64): the source pixel of each entry, and
+    ``alpha`` (float32): its weight. Entries are in OpenCV's order (increasing source pixel).
+    """
+    scale = 1.0 / (dst / src)  # OpenCV: scale_x = 1. / inv_scale_x, inv_scale_x = dst / src
+    starts = [0]
+    index: list[int] = []
+    alpha: list[float] = []
+    for d in range(dst):
+        fs1 = d * scale
+        fs2 = fs1 + scale
+        cell = min(scale, src - fs1)
+        s1, s2 = math.ceil(fs1), math.floor(fs2)
+        s2 = min(s2, src - 1)
+        s1 = min(s1, s2)
+        if s1 - fs1 > 1e-3:
+            index.append(s1 - 1)
+            alpha.append(float(np.float32((s1 - fs1) / cell)))
+        for s in range(s1, s2):
+            index.append(s)
+            alpha.append(float(np.float32(1.0 / cell)))
+        if fs2 - s2 > 1e-3:
+            index.append(s2)
+            alpha.append(float(np.float32(min(min(fs2 - s2, 1.0), cell) / cell)))
+        starts.append(len(index))
+    out = (
+        np.asarray(starts, np.int64),
+        np.asarray(index, np.int64),
+        np.asarray(alpha, np.float32),
+    )
+    for a in out:
+        a.setflags(write=False)
+    return out
+
+
+def resize_area(image: np.ndarray, out_hw: tuple[int, int]) -> np.ndarray:
+    """``cv2.resize(image, (w, h), interpolation=cv2.INTER_AREA)``, bit for bit.
+
+    ``image`` is ``(H, W)`` or ``(H, W, C)`` uint8 (a view is fine); the result has the same
+    number of dimensions (unlike OpenCV, a trailing singleton channel is kept).
+    """
+    h, w = image.shape[:2]
+    oh, ow = out_hw
+    if oh < 1 or ow < 1 or image.dtype != np.uint8 or image.ndim not in (2, 3):
+        return _opencv(image, out_hw)
+    sx, sy = 1.0 / (ow / w), 1.0 / (oh / h)  # OpenCV's scale_x, scale_y
+    integer = abs(sx - round(sx)) < _DBL_EPSILON and abs(sy - round(sy)) < _DBL_EPSILON
+    if sx < 1 or sy < 1 or integer:
+        return _opencv(image, out_hw)
+    cn = 1 if image.ndim == 2 else image.shape[2]
+    # Column-major source: row r of the transposed (W C, H) matrix is one source column and
+    # channel, so the horizontal sums run along contiguous memory, all source rows at once.
+    columns = cv2.transpose(image.reshape(h, w * cn))
+    ystart, yindex, yalpha = _area_table(h, oh)
+    xstart, xindex, xalpha = _area_table(w, ow)
+    out = np.empty((oh, ow, cn), np.uint8)
+    _resize_area_u8(columns, cn, ystart, yindex, yalpha, xstart, xindex, xalpha, out)
+    return out if image.ndim == 3 else out[..., 0]
+
+
+def _opencv(image: np.ndarray, out_hw: tuple[int, int]) -> np.ndarray:
+    out = cv2.resize(image, (out_hw[1], out_hw[0]), interpolation=cv2.INTER_AREA)
+    return out[..., None] if out.ndim < image.ndim else out
+
+
+@numba.njit(cache=True, nogil=True, boundscheck=False)
+def _resize_area_u8(
+    columns, cn, ystart, yindex, yalpha, xstart, xindex, xalpha, out
+):  # pragma: no cover - compiled
+    """The kernel: transposed source ``(W C, H)`` uint8 -> ``(oh, ow, C)`` uint8.
+
+    For one destination column and channel at a time: ``row[r]`` = the horizontal sum of
+    source row ``r`` (OpenCV's ``buf[dx]``, the same additions in the same order, vectorised
+    over ``r``), then each destination pixel is OpenCV's vertical sum of those, rounded half to
+    even and saturated.
+    """
+    oh, ow, _ = out.shape
+    h = columns.shape[1]
+    row = np.empty(h, np.float32)
+    for dx in range(ow):
+        for c in range(cn):
+            k0 = xstart[dx]
+            src = columns[xindex[k0] * cn + c]
+            a = xalpha[k0]
+            for r in range(h):
+                row[r] = np.float32(src[r]) * a
+            for k in range(k0 + 1, xstart[dx + 1]):
+                src = columns[xindex[k] * cn + c]
+                a = xalpha[k]
+                for r in range(h):
+                    row[r] = row[r] + np.float32(src[r]) * a
+            for dy in range(oh):
+                j0 = ystart[dy]
+                s = yalpha[j0] * row[yindex[j0]]
+                for j in range(j0 + 1, ystart[dy + 1]):
+                    s = s + yalpha[j] * row[yindex[j]]
+                v = np.rint(s)
+                out[dy, dx, c] = 0 if v < 0 else (255 if v > 255 else np.uint8(v))

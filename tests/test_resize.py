@@ -1,0 +1,62 @@
+"""``resize_area`` is OpenCV's INTER_AREA shrink bit for bit (the release samples with it)."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from arcf.features.patches import resize_auto
+from arcf.features.resize import resize_area
+
+
+def _opencv(image: np.ndarray, out_hw: tuple[int, int]) -> np.ndarray:
+    out = cv2.resize(image, (out_hw[1], out_hw[0]), interpolation=cv2.INTER_AREA)
+    return out[..., None] if out.ndim < image.ndim else out
+
+
+@pytest.mark.parametrize("channels", [None, 1, 3])
+def test_random_shrinks_equal_opencv(channels: int | None) -> None:
+    rng = np.random.default_rng(7 if channels is None else channels)
+    for _ in range(150):
+        h, w = (int(v) for v in rng.integers(2, 260, 2))
+        oh = max(1, int(h / rng.uniform(1.0, 9.0)))
+        ow = max(1, int(w / rng.uniform(1.0, 9.0)))
+        shape = (h, w) if channels is None else (h, w, channels)
+        image = rng.integers(0, 256, shape, dtype=np.uint8)
+        np.testing.assert_array_equal(resize_area(image, (oh, ow)), _opencv(image, (oh, ow)))
+
+
+def test_saturated_and_smooth_images_equal_opencv() -> None:
+    """Sums near 0 and 255 (saturation, rounding half to even) and smooth natural gradients."""
+    rng = np.random.default_rng(3)
+    smooth = cv2.GaussianBlur(rng.integers(0, 256, (777, 1111, 3), dtype=np.uint8), (0, 0), 4)
+    for image in (
+        np.full((301, 257, 3), 255, np.uint8),
+        np.zeros((301, 257, 3), np.uint8),
+        rng.choice(np.array([0, 255], np.uint8), (301, 257, 3)),
+        smooth,
+    ):
+        for out_hw in ((200, 200), (57, 33), (1, 1), (150, 256)):
+            np.testing.assert_array_equal(resize_area(image, out_hw), _opencv(image, out_hw))
+
+
+def test_views_integer_ratios_and_enlargements_equal_opencv() -> None:
+    """A window cut from a frame (a strided view), OpenCV's integer fast path, and mixed
+    shrink / enlarge ratios all give OpenCV's result."""
+    rng = np.random.default_rng(5)
+    frame = rng.integers(0, 256, (720, 1280, 3), dtype=np.uint8)
+    window = frame[101:1012, 250:1161]
+    np.testing.assert_array_equal(resize_area(window, (200, 200)), _opencv(window, (200, 200)))
+    for out_hw in ((180, 320), (360, 640), (720, 2000), (1000, 100)):
+        np.testing.assert_array_equal(resize_area(frame, out_hw), _opencv(frame, out_hw))
+
+
+def test_resize_auto_keeps_the_release_rule() -> None:
+    """Area when the new width does not exceed the old height, linear otherwise (detail 8)."""
+    rng = np.random.default_rng(11)
+    patch = rng.integers(0, 256, (22, 48, 3), dtype=np.uint8)  # DSST-like: wide, short
+    linear = cv2.resize(patch, (32, 15), interpolation=cv2.INTER_LINEAR)
+    np.testing.assert_array_equal(resize_auto(patch, (15, 32)), linear)
+    tall = rng.integers(0, 256, (48, 22, 3), dtype=np.uint8)
+    np.testing.assert_array_equal(resize_auto(tall, (32, 15)), _opencv(tall, (32, 15)))
