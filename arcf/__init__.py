@@ -16,6 +16,7 @@ from .errors import (
     NotInitializedError,
     UnknownPresetError,
 )
+from .features import warm_up
 from .presets import ARCF_H, ARCF_HC, BACF, PRESETS, ScaleFilterParams, TrackerParams, make_params
 from .tracker import ARCFTracker, TrackResult, create_tracker
 
@@ -38,4 +39,5 @@ __all__ = [
     "UnknownPresetError",
     "create_tracker",
     "make_params",
+    "warm_up",
 ]

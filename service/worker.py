@@ -20,7 +20,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from arcf import ARCFError, create_tracker
+from arcf import ARCFError, create_tracker, warm_up
 from schemas import ErrorMessage, Frame, KeySpace, Result, SchemaError, decode, encode
 
 from .imagecheck import image_size
@@ -95,10 +95,12 @@ def _warm_up() -> None:
     """Import the tracker library and run each preset once on a synthetic frame.
 
     Without it the first session on a worker pays for the imports, FFT plan caches and feature
-    buffers (hundreds of ms), which shows up as a latency spike on the first frames.
+    buffers (hundreds of ms), and on a machine without Numba's cache for the compiled kernels
+    their compilation (~5.6 s), which shows up as a latency spike on the first frames.
     """
     from arcf import PRESETS
 
+    log.debug("tracker kernels ready in %.2f s", warm_up())
     rng = np.random.default_rng(0)
     frame = cv2.GaussianBlur(rng.integers(0, 255, (240, 320, 3), dtype=np.uint8), (0, 0), 3)
     for name in PRESETS:

@@ -741,18 +741,20 @@ def _vote(start, index, mag, w_top, w_bottom, wb, acc, out):  # pragma: no cover
     order, first row's pass before the second row's, so each float32 sum is rounded exactly as
     the earlier ``np.add.at`` formulation rounded it. Writes ``out`` ``(2n, N, hb, wb)``.
     """
-    npix = start.shape[0]
     hw = w_top.shape[0]
+    n_img = start.shape[0] // hw
     left, right = acc[0], acc[1]
     left[:] = 0.0
     right[:] = 0.0
     for row_offset, weights in ((0, w_top), (wb + 1, w_bottom)):
-        for p in range(npix):
-            k = start[p] + index[p] + row_offset
-            w = weights[p % hw]
-            m = mag[p]
-            left[k] += m * w.real
-            right[k] += m * w.imag
+        for i in range(n_img):
+            for q in range(hw):
+                p = i * hw + q
+                k = start[p] + index[p] + row_offset
+                w = weights[q]
+                m = mag[p]
+                left[k] += m * w.real
+                right[k] += m * w.imag
     n_bins, n_img, hb, _ = out.shape
     plane = n_img * (hb + 1) * (wb + 1)
     # Cell (i, j) = left votes at padded (i + 1, j + 1) + right votes at padded (i + 1, j).
@@ -812,43 +814,42 @@ def _normalise_cells(r, n, eps, half_clip, texture, out):  # pragma: no cover - 
     nbr = hb - 1 if hb > 1 else hb
     nbc = wb - 1 if wb > 1 else wb
     energy = np.empty((hb, wb), np.float32)
-    rows = np.empty((nbr, wb), np.float32)
     block = np.empty((nbr, nbc), np.float32)
-    terms = np.empty(3 * n, np.float32)
+    nk = np.empty(wb, np.float32)
+    terms = np.empty((3 * n, wb), np.float32)
+    tex = np.empty(wb, np.float32)
     for i in range(n_img):
-        for y in range(hb):
-            for x in range(wb):
-                e = np.float32(0.0)
-                for o in range(n):
+        energy[:] = 0.0
+        for o in range(n):
+            for y in range(hb):
+                for x in range(wb):
                     v = r[o, i, y, x] + r[o + n, i, y, x]
                     r[n_bins + o, i, y, x] = v
-                    e += v * v
-                energy[y, x] = e
-        for y in range(nbr):
-            for x in range(wb):
-                rows[y, x] = energy[y, x] + energy[y + 1, x] if hb > 1 else energy[y, x]
+                    energy[y, x] += v * v
         for y in range(nbr):
             for x in range(nbc):
-                e = rows[y, x] + rows[y, x + 1] if wb > 1 else rows[y, x]
-                block[y, x] = np.float32(0.5) / np.sqrt(e + eps)
+                e0 = energy[y, x] + energy[y + 1, x] if hb > 1 else energy[y, x]
+                if wb > 1:
+                    e1 = energy[y, x + 1] + energy[y + 1, x + 1] if hb > 1 else energy[y, x + 1]
+                    e0 = e0 + e1
+                block[y, x] = np.float32(0.5) / np.sqrt(e0 + eps)
         for y in range(hb):
-            for x in range(wb):
+            for k in range(4):
                 # The block starting at this cell, one row up, one column left, up-left.
-                y0, y1 = min(y, nbr - 1), min(max(y - 1, 0), nbr - 1)
-                x0, x1 = min(x, nbc - 1), min(max(x - 1, 0), nbc - 1)
-                for k in range(4):
-                    nk = block[y1 if k & 1 else y0, x1 if k & 2 else x0]
-                    tex = np.float32(0.0)
-                    for c in range(3 * n):
-                        t = r[c, i, y, x] * nk
-                        if t > half_clip:
-                            t = half_clip
-                        if k == 0:
-                            terms[c] = t
-                        else:
-                            terms[c] = terms[c] + t
-                        if c < n_bins:
-                            tex = t if c == 0 else tex + t
-                    out[i, y, x, 3 * n + k] = tex * texture
+                by = min(max(y - 1, 0), nbr - 1) if k & 1 else min(y, nbr - 1)
+                for x in range(wb):
+                    bx = min(max(x - 1, 0), nbc - 1) if k & 2 else min(x, nbc - 1)
+                    nk[x] = block[by, bx]
                 for c in range(3 * n):
-                    out[i, y, x, c] = terms[c]
+                    for x in range(wb):
+                        t = min(r[c, i, y, x] * nk[x], half_clip)
+                        if c == 0:
+                            tex[x] = t
+                        elif c < n_bins:
+                            tex[x] = tex[x] + t
+                        terms[c, x] = t if k == 0 else terms[c, x] + t
+                for x in range(wb):
+                    out[i, y, x, 3 * n + k] = tex[x] * texture
+            for x in range(wb):
+                for c in range(3 * n):
+                    out[i, y, x, c] = terms[c, x]
