@@ -49,9 +49,9 @@ from functools import lru_cache
 from typing import Literal
 
 import cv2
-import numba
 import numpy as np
 
+from ._jit import kernel
 from .sse import SSETables
 
 __all__ = ["Arithmetic", "ArithmeticMode", "fhog", "fhog_num_channels"]
@@ -729,7 +729,7 @@ def _histogram(
         out *= s * s
 
 
-@numba.njit(cache=True, nogil=True, boundscheck=False)
+@kernel
 def _vote(start, index, mag, w_top, w_bottom, wb, acc, out):  # pragma: no cover - compiled
     """Bilinear spatial voting of every pixel's ``2 M`` into its orientation plane.
 
@@ -796,7 +796,7 @@ def _normalise(
                      texture, out.reshape(n_img, hb, wb, -1))
 
 
-@numba.njit(cache=True, nogil=True, boundscheck=False)
+@kernel
 def _normalise_cells(r, n, eps, half_clip, texture, out):  # pragma: no cover - compiled
     """``_normalise``'s kernel, cell by cell.
 

@@ -9,11 +9,11 @@ from __future__ import annotations
 from functools import lru_cache
 from pathlib import Path
 
-import numba
 import numpy as np
 
 from ..data import COLORNAMES_ENV, default_colornames_path
 from ..errors import ColorNamesNotFoundError
+from ._jit import kernel
 
 CN_SHA256 = "e056387d4bc872167cfb2519693d7dce9a25d07dc3a867c5b22e86d2caf5689c"
 
@@ -35,7 +35,7 @@ def cell_average(maps: np.ndarray, cell: int) -> np.ndarray:
     return out
 
 
-@numba.njit(cache=True, nogil=True, boundscheck=False)
+@kernel
 def _cell_sums(maps, cell, out):  # pragma: no cover - compiled
     """``cell_average``'s kernel; the same float32 additions in the same order as the release.
 

@@ -29,8 +29,9 @@ import math
 from functools import lru_cache
 
 import cv2
-import numba
 import numpy as np
+
+from ._jit import kernel
 
 __all__ = ["resize_area"]
 
@@ -107,7 +108,7 @@ def _opencv(image: np.ndarray, out_hw: tuple[int, int]) -> np.ndarray:
     return out[..., None] if out.ndim < image.ndim else out
 
 
-@numba.njit(cache=True, nogil=True, boundscheck=False)
+@kernel
 def _resize_area_u8(
     columns, cn, ystart, yindex, yalpha, xstart, xindex, xalpha, out
 ):  # pragma: no cover - compiled
