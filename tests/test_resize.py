@@ -60,3 +60,27 @@ def test_resize_auto_keeps_the_release_rule() -> None:
     np.testing.assert_array_equal(resize_auto(patch, (15, 32)), linear)
     tall = rng.integers(0, 256, (48, 22, 3), dtype=np.uint8)
     np.testing.assert_array_equal(resize_auto(tall, (32, 15)), _opencv(tall, (32, 15)))
+
+
+def test_kernels_compile_in_memory_when_no_cache_can_be_written(monkeypatch) -> None:
+    """Numba raises at definition time when it cannot write a cache (a read-only container);
+    the kernels then compile without one instead of breaking the library's import."""
+    import numba
+
+    from arcf.features import _jit
+
+    real_njit = numba.njit
+
+    def njit(*args, cache=False, **kwargs):
+        if cache:
+            raise RuntimeError("cannot cache function 'f': no locator available for file 'x.py'")
+        return real_njit(*args, **kwargs)
+
+    monkeypatch.setattr(_jit.numba, "njit", njit)
+
+    def twice(a):
+        return 2 * a
+
+    compiled = _jit.kernel(twice)
+    assert compiled(21) == 42
+    assert compiled.signatures  # compiled by Numba, not the Python function returned as is
