@@ -17,7 +17,16 @@ from .errors import (
     UnknownPresetError,
 )
 from .features import warm_up
-from .presets import ARCF_H, ARCF_HC, BACF, PRESETS, ScaleFilterParams, TrackerParams, make_params
+from .presets import (
+    ARCF_H,
+    ARCF_HC,
+    BACF,
+    PRESETS,
+    RELEASE_COMPATIBLE,
+    ScaleFilterParams,
+    TrackerParams,
+    make_params,
+)
 from .tracker import ARCFTracker, TrackResult, create_tracker
 
 __version__ = "0.1.0"
@@ -27,6 +36,7 @@ __all__ = [
     "ARCF_HC",
     "BACF",
     "PRESETS",
+    "RELEASE_COMPATIBLE",
     "ARCFError",
     "ARCFTracker",
     "ColorNamesNotFoundError",

@@ -9,7 +9,7 @@ import scipy.fft as sfft
 
 from .features.fhog import Arithmetic as FhogArithmetic
 from .features.fhog import fhog
-from .features.patches import crop_replicate, resize_auto
+from .features.patches import crop_replicate, pyramid_windows, resize_auto
 from .presets import ScaleFilterParams
 
 
@@ -50,9 +50,11 @@ class DSSTScaleFilter:
         params: ScaleFilterParams,
         init_target_sz: tuple[float, float],
         fhog_arithmetic: FhogArithmetic = "release",
+        sampling: str = "release",
     ) -> None:
         self.params = params
         self.fhog_arithmetic = fhog_arithmetic
+        self.sampling = sampling  # "release" or "pyramid" (TrackerParams.sampling)
         n = params.n_scales
         ss = np.arange(1, n + 1) - math.ceil(n / 2)
         sigma = math.sqrt(n) * params.sigma_factor
@@ -78,14 +80,18 @@ class DSSTScaleFilter:
         scale: float,
     ) -> np.ndarray:
         """(features, scales) matrix of windowed, flattened fHOG features (DSST's xs)."""
-        patches = []
-        fr, fc = math.floor(pos[0]), math.floor(pos[1])
-        for f in self.factors * scale:
-            ph = max(math.floor(base_target_sz[0] * f), 2)  # release (DSST): at least 2 px
-            pw = max(math.floor(base_target_sz[1] * f), 2)
-            patch = crop_replicate(image, fr - ph // 2, fc - pw // 2, ph, pw)
-            patches.append(resize_auto(patch, self.model_sz))
-        feats = fhog(np.stack(patches), 4, arithmetic=self.fhog_arithmetic)  # (S, h, w, 31)
+        sizes = [
+            # release (DSST): at least 2 px
+            (max(math.floor(base_target_sz[0] * f), 2), max(math.floor(base_target_sz[1] * f), 2))
+            for f in self.factors * scale
+        ]
+        if self.sampling == "pyramid":
+            patches = pyramid_windows(image, pos, sizes, self.model_sz)
+        else:
+            fr, fc = math.floor(pos[0]), math.floor(pos[1])
+            windows = (crop_replicate(image, fr - h // 2, fc - w // 2, h, w) for h, w in sizes)
+            patches = np.stack([resize_auto(win, self.model_sz) for win in windows])
+        feats = fhog(patches, 4, arithmetic=self.fhog_arithmetic)  # (S, h, w, 31)
         # column-major (MATLAB's temp(:)) order of each scale's (h, w, 31) block
         xs = feats.transpose(0, 3, 2, 1).reshape(len(patches), -1).T.astype(np.float64)
         return xs * self.window[None, :]

@@ -29,7 +29,7 @@ from .admm import Crop, solve_filter
 from .errors import InvalidBoxError, InvalidFrameError, NotInitializedError, UnknownPresetError
 from .features.extract import FeatureExtractor
 from .features.fhog import Arithmetic as FhogArithmetic
-from .features.patches import bacf_patch, matlab_round
+from .features.patches import bacf_patch, matlab_round, pyramid_windows
 from .features.sse import load_sse_tables
 from .fourier import gaussian_label, hann2d, newton_peak, peak_to_sidelobe, spatial_response
 from .presets import TrackerParams, make_params
@@ -226,7 +226,9 @@ class ARCFTracker:
         self._finish_configuration(base, csf, (float(support), float(support)))
         self._scale_factors = np.ones(1)
         sf = p.scale_filter
-        self._scale_filter = DSSTScaleFilter(sf, (float(h), float(w)), self._fhog_arithmetic)
+        self._scale_filter = DSSTScaleFilter(
+            sf, (float(h), float(w)), self._fhog_arithmetic, p.sampling
+        )
         self._min_scale, self._max_scale = scale_limits(
             sf.scale_step, (support, support), self._base_target_sz, self._image_hw
         )
@@ -251,7 +253,7 @@ class ARCFTracker:
         """Step 1: locate the target; updates position and scale. Returns (map, peak value)."""
         p = self.params
         sample_pos = self._sample_pos()
-        patches = np.stack([self._patch(image, sample_pos, f) for f in self._scale_factors])
+        patches = self._patches(image, sample_pos, self._scale_factors)
         xtf = self._fwd(self._extractor(patches, self._color) * self._window)  # (S, D, H, W')
         rf = np.sum(np.conj(self._g_f)[None] * xtf, axis=1)  # (S, H, W')
         if rf.shape[0] == 1:
@@ -291,8 +293,8 @@ class ARCFTracker:
 
     def _training_sample(self, image: np.ndarray) -> np.ndarray:
         """Step 3a: windowed features at the new position and scale, in the Fourier domain."""
-        patch = self._patch(image, self._sample_pos(), 1.0)
-        return self._fwd(self._extractor(patch[None], self._color)[0] * self._window)
+        patch = self._patches(image, self._sample_pos(), (1.0,))
+        return self._fwd(self._extractor(patch, self._color)[0] * self._window)
 
     def _solve(self, target_f: np.ndarray | None) -> np.ndarray:
         """Step 3b: the filter ĝ from the running model by ADMM."""
@@ -317,14 +319,19 @@ class ARCFTracker:
         """Where windows are cut: the position rounded to a pixel (ARCF-H's already is)."""
         return float(matlab_round(self._pos[0])), float(matlab_round(self._pos[1]))
 
-    def _patch(self, image: np.ndarray, pos: tuple[float, float], factor: float) -> np.ndarray:
-        """The search window at relative scale ``factor``, resized to the working size.
+    def _patches(
+        self, image: np.ndarray, pos: tuple[float, float], factors: Any
+    ) -> np.ndarray:
+        """The search windows at relative scales ``factors``, resized to the working size.
 
-        (S, S, C) uint8 RGB, S = ``self._sample_sz``; the window side is
+        (N, S, S, C) uint8 RGB, S = ``self._sample_sz``; each window's side is
         ``round(S * csf * factor)`` source pixels (release: ``get_pixels``).
         """
-        side = matlab_round(self._sample_sz * self._csf * factor)
-        return bacf_patch(image, pos, (side, side), (self._sample_sz, self._sample_sz))
+        sides = [matlab_round(self._sample_sz * self._csf * f) for f in factors]
+        out_hw = (self._sample_sz, self._sample_sz)
+        if self.params.sampling == "pyramid":
+            return pyramid_windows(image, pos, [(s, s) for s in sides], out_hw)
+        return np.stack([bacf_patch(image, pos, (s, s), out_hw) for s in sides])
 
     def _fwd(self, maps: np.ndarray) -> np.ndarray:
         return sfft.rfft2(maps) if self._hermitian else sfft.fft2(maps)

@@ -12,8 +12,11 @@ Runs one-pass evaluation of each configuration on every sequence present under t
 4. the paper's Table 2 in both norms (Frobenius, as Eq. 2 defines it, and the release's);
 5. with ``--gammas``, a sweep of γ for the paper formulation.
 
-A configuration is ``<preset>[:<formulation>][:gamma=<value>][:fhog=<exact|release>]``, e.g.
-``arcf-h:release``, ``arcf-hc:paper:gamma=0.3``; ``bacf`` has γ = 0, so no formulation.
+A configuration is ``<preset>[:<formulation>][:gamma=<value>][:fhog=<exact|release>]
+[:sampling=<release|pyramid>]``, e.g. ``arcf-h:release``, ``arcf-hc:paper:gamma=0.3``. A bare
+preset name runs the shipped preset; a formulation runs on the release's sampler, and
+``release`` is the release-compatible configuration (``bacf:release`` too, although γ = 0
+leaves no formulation to choose).
 
     python benchmarks/fidelity.py                       # the default configurations, 2 processes
     python benchmarks/fidelity.py --configs arcf-h:release --sequences truck4_2
@@ -38,6 +41,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
 
+import arcf
 from arcf.data import data_root
 from arcf.eval import load_dataset, read_results, score_sequence, write_results
 from arcf.eval.metrics import centers
@@ -45,7 +49,8 @@ from arcf.eval.report import map_difference_mean
 from arcf.eval.runner import DATASET_FOLDERS
 
 DEFAULT_CONFIGS = (
-    "arcf-hc:release", "arcf-hc:paper", "arcf-h:release", "arcf-h:paper", "bacf",
+    "arcf-hc:release", "arcf-hc:paper", "arcf-h:release", "arcf-h:paper", "bacf:release",
+    "arcf-h", "bacf",
 )
 PUBLISHED = {"arcf-hc": "ARCF-HC", "arcf-h": "ARCF-H", "bacf": "BACF"}
 #: A run "matches" the release when its boxes' centres are this close on average (issue 12).
@@ -53,16 +58,27 @@ MATCH_PX = 0.5
 
 
 def parse_config(config: str) -> tuple[str, dict[str, Any]]:
-    """``arcf-h:paper:gamma=0.3`` -> ("arcf-h", {"aberrance": "paper", "gamma": 0.3})."""
+    """``arcf-h:paper:gamma=0.3`` -> ("arcf-h", {"aberrance": "paper", "sampling": "release",
+    "gamma": 0.3}).
+
+    A bare preset name is the shipped preset. Naming a formulation (``paper`` / ``release``)
+    studies it on the release's own sampler, so that these rows compare formulations and
+    nothing else; ``release`` is the release-compatible configuration
+    (``arcf.RELEASE_COMPATIBLE``). ``sampling=pyramid`` overrides the sampler.
+    """
     preset, *parts = config.split(":")
     overrides: dict[str, Any] = {}
     for part in parts:
-        if part in ("paper", "release"):
-            overrides["aberrance"] = part
+        if part == "release":
+            overrides.update(arcf.RELEASE_COMPATIBLE)
+        elif part == "paper":
+            overrides.update(aberrance="paper", sampling="release")
         elif part.startswith("gamma="):
             overrides["gamma"] = float(part[6:])
         elif part.startswith("fhog="):
             overrides["fhog_arithmetic"] = part[5:]
+        elif part.startswith("sampling="):
+            overrides["sampling"] = part[9:]
         else:
             raise ValueError(f"bad configuration part {part!r} in {config!r}")
     if preset not in PUBLISHED:
@@ -217,6 +233,9 @@ class Report:
                 by_tracker[PUBLISHED[preset]].append(c)
         for h_cfg in by_tracker["ARCF-H"]:
             for b_cfg in by_tracker["BACF"]:
+                if parse_config(h_cfg)[1].get("sampling") != parse_config(b_cfg)[1].get(
+                        "sampling"):
+                    continue  # pair ARCF-H with the BACF that samples windows the same way
                 cells = []
                 for column in (0, 1):
                     for cfg in (h_cfg, b_cfg):

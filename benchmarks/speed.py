@@ -41,11 +41,13 @@ def worker(job_file: str, tracker_name: str, threads: str, profile: bool) -> Non
     job = json.loads(Path(job_file).read_text())
     frames = [cv2.imread(p, cv2.IMREAD_COLOR) for p in job["frames"]]
     x, y, w, h = job["box"]
+    kernels = 0.0  # loading (or compiling) arcf's Numba kernels, before any timing
     if tracker_name == "csrt":
         tracker = cv2.TrackerCSRT.create()
         box0 = (round(x - 1), round(y - 1), round(w), round(h))  # OpenCV: 0-based integer rect
         t0 = time.perf_counter()
         tracker.init(frames[0], box0)
+        first = time.perf_counter() - t0
         for f in frames[1:]:
             tracker.update(f)
         seconds = time.perf_counter() - t0
@@ -53,11 +55,15 @@ def worker(job_file: str, tracker_name: str, threads: str, profile: bool) -> Non
         sys.path.insert(0, str(ROOT))
         import arcf
 
+        kernels = arcf.warm_up()
         tracker = arcf.create_tracker(tracker_name)
+        first = 0.0
 
         def run() -> float:
+            nonlocal first
             t0 = time.perf_counter()
             tracker.init(frames[0], (x, y, w, h))
+            first = time.perf_counter() - t0
             for f in frames[1:]:
                 tracker.update(f)
             return time.perf_counter() - t0
@@ -72,8 +78,9 @@ def worker(job_file: str, tracker_name: str, threads: str, profile: bool) -> Non
             stats.sort_stats("tottime").print_stats(20)
         else:
             seconds = run()
-    print(json.dumps({"frames": len(frames), "seconds": seconds,
-                      "fps": len(frames) / seconds, "pixels": list(np.shape(frames[0]))}))
+    print(json.dumps({"frames": len(frames), "seconds": seconds, "first_s": first,
+                      "kernels_s": kernels, "fps": len(frames) / seconds,
+                      "pixels": list(np.shape(frames[0]))}))
 
 
 # ----------------------------------------------------------------------------- orchestrator
@@ -138,6 +145,8 @@ def main() -> int:
                      "--csrt-python PATH (a venv with opencv-contrib-python-headless)")
 
     fps: dict[tuple[str, str, str], float] = {}
+    first: dict[str, list[float]] = {t: [] for t in trackers}  # init (first frame) seconds
+    kernels: list[float] = []  # arcf's kernel load per fresh process, seconds
     with tempfile.TemporaryDirectory() as tmp:
         for seq in seqs:
             job = Path(tmp) / f"{seq.name}.json"
@@ -165,13 +174,23 @@ def main() -> int:
                         print(out.stderr)
                     r = json.loads(out.stdout.strip().splitlines()[-1])
                     fps[(seq.name, mode, t)] = r["fps"]
+                    first[t].append(r["first_s"])
+                    if t != "csrt":
+                        kernels.append(r["kernels_s"])
                     print(f"# {seq.name} [{mode}] {t}: {r['fps']:.1f} FPS", file=sys.stderr)
 
     if args.profile:
         return 0
     print(f"Machine: {os.cpu_count()} CPUs (`nproc`), {cpu_model()}; Python "
           f"{platform.python_version()}. FPS = frames / (init + update seconds), frames decoded "
-          "beforehand.\n")
+          "beforehand; arcf's Numba kernels are loaded before timing (the service does so when "
+          "a worker starts).\n")
+    if kernels:
+        print(f"Kernel load per fresh process (Numba cache present): median "
+              f"{statistics.median(kernels) * 1e3:.0f} ms, max {max(kernels) * 1e3:.0f} ms.\n")
+    print("First-frame latency (init), median / max over sequences: " + "; ".join(
+        f"{t} {statistics.median(v) * 1e3:.1f} / {max(v) * 1e3:.1f} ms"
+        for t, v in first.items() if v) + ".\n")
     for mode in modes:
         label = "single-threaded (BLAS/FFT/OpenCV pinned to 1 thread)" if mode == "1" else \
             "default threads"

@@ -54,7 +54,7 @@ def test_run_writes_every_file_and_matches_an_in_process_run(tmp_path: Path, seq
         assert details[0, 2] == 0 and np.all(details[1:, 2] > 0)  # aberrance after frame 1
         # a worker process gives exactly the boxes of the library run here (4-decimal files)
         frames = [seq.read_frame(i) for i in range(len(seq))]
-        local = run_sequence(arcf.create_tracker("arcf-h", aberrance="release"), frames,
+        local = run_sequence(arcf.create_tracker("arcf-h", **arcf.RELEASE_COMPATIBLE), frames,
                              seq.init_box)
         np.testing.assert_allclose(boxes, local.boxes, atol=1e-4)
     fps = json.loads((folder / "fps.json").read_text())

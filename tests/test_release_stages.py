@@ -97,7 +97,7 @@ def rgb_frame(dataset: str, sequence: str, index: int) -> np.ndarray:
 def configured(run: Run) -> ARCFTracker:
     """A release-mode tracker initialised on the run's first frame (sizes, label, window...)."""
     seq = load_dataset(run.dataset, sequences=[run.sequence])[0]
-    tracker = arcf.create_tracker(run.preset, aberrance="release")
+    tracker = arcf.create_tracker(run.preset, **arcf.RELEASE_COMPATIBLE)
     tracker.init(seq.read_frame(0), seq.init_box)
     return tracker
 
@@ -156,7 +156,7 @@ def test_patches(run: Run, frame: int, stage: str) -> None:
     if f"{stage}_sample_pos" in t:
         assert pos == tuple(t[f"{stage}_sample_pos"].ravel())
     factors = tracker._scale_factors if stage == "det" else [1.0]
-    ours = np.stack([tracker._patch(image, pos, f) for f in factors])
+    ours = tracker._patches(image, pos, factors)
     np.testing.assert_array_equal(ours, images(t[f"{stage}_patch_resized"]))
 
 
@@ -421,7 +421,7 @@ def test_release_trajectory(case: Trajectory, monkeypatch: pytest.MonkeyPatch) -
     monkeypatch.setattr(tracker_module, "newton_peak", spy)
     pf = per_frame(case.trace)
     seq = load_dataset(case.dataset, sequences=[case.sequence])[0]
-    tracker = arcf.create_tracker(case.preset, aberrance="release")
+    tracker = arcf.create_tracker(case.preset, **arcf.RELEASE_COMPATIBLE)
     tracker.init(seq.read_frame(0), seq.init_box)
     atol = 1e-6 if tracker.params.round_translation else 2e-3  # ARCF-HC's pos is float32 there
     last = case.first_divergence or len(seq) + 1
@@ -452,7 +452,7 @@ def test_release_boxes(tracker_name: str, preset: str, sequence: str) -> None:
     target of truck4_1 (11x8 px) that the earlier, less faithful version lost with ARCF-HC."""
     need_traces()
     seq = load_dataset("uav123_10fps", sequences=[sequence])[0]
-    tracker = arcf.create_tracker(preset, aberrance="release")
+    tracker = arcf.create_tracker(preset, **arcf.RELEASE_COMPATIBLE)
     boxes = [tracker.init(seq.read_frame(0), seq.init_box).box]
     boxes += [tracker.update(seq.read_frame(i)).box for i in range(1, len(seq))]
     ref = read_results(BOXES / tracker_name / f"{sequence}.txt")

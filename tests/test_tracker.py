@@ -732,7 +732,12 @@ def test_documented_preset_values() -> None:
         assert p.cell_size == 4 and p.search_area_scale == 5.0
         assert p.output_sigma_factor == 1 / 16
         assert p.fhog_arithmetic == "release"  # the toolbox's SSE approximations
-        assert not hasattr(p, "sampling")  # both trackers sample with get_pixels
+    # ARCF-H and BACF sample with the pyramid (as accurate, faster), ARCF-HC with the
+    # release's get_pixels, which it needs to keep BMX3 (docs/benchmarks.md §3)
+    assert ARCF_H.sampling == BACF.sampling == "pyramid" and ARCF_HC.sampling == "release"
+    release = make_params("arcf-h", **arcf.RELEASE_COMPATIBLE)
+    assert (release.aberrance, release.sampling, release.fhog_arithmetic) == (
+        "release", "release", "release")
     # each ships the aberrance formulation that measured best (docs/benchmarks.md §2)
     assert ARCF_H.aberrance == "release" and ARCF_HC.aberrance == "paper"
     # ARCF-H: the release's values (paper: 5 iterations, 0.0192)

@@ -33,10 +33,9 @@ import numpy as np
 
 from ._jit import kernel
 
-__all__ = ["resize_area"]
+__all__ = ["resample_area", "resize_area"]
 
 _DBL_EPSILON = 2.220446049250313e-16
-
 
 
 @lru_cache(maxsize=256)
@@ -101,6 +100,60 @@ def resize_area(image: np.ndarray, out_hw: tuple[int, int]) -> np.ndarray:
     out = np.empty((oh, ow, cn), np.uint8)
     _resize_area_u8(columns, cn, ystart, yindex, yalpha, xstart, xindex, xalpha, out)
     return out if image.ndim == 3 else out[..., 0]
+
+
+def resample_area(
+    image: np.ndarray, origin: tuple[float, float], extent: tuple[float, float],
+    out_hw: tuple[int, int],
+) -> np.ndarray:
+    """Area (box) resampling of a window with fractional position and size.
+
+    The window starts at ``origin`` (row, col) and spans ``extent`` (rows, cols) in ``image``'s
+    pixel units, both possibly fractional; output pixel ``d`` is the mean of the image over its
+    share ``[o + d e / n, o + (d + 1) e / n)``, each source pixel weighted by its overlap (the
+    same arithmetic as ``resize_area``, with OpenCV's float32 sums and rounding). Parts of the
+    window outside the image read the nearest edge pixel. ``image`` is ``(H, W, C)`` uint8;
+    returns ``(oh, ow, C)`` uint8.
+
+    Why: the "pyramid" sampler reads a window from an image already halved ``k`` times, where
+    its borders fall between pixels; box weights there keep the result an area average of the
+    window, which bilinear interpolation at a shrink of up to 2 is not (it skips pixels).
+    """
+    h, w, cn = image.shape
+    oh, ow = out_hw
+    ystart, yindex, yalpha = _box_table(origin[0], extent[0], h, oh)
+    xstart, xindex, xalpha = _box_table(origin[1], extent[1], w, ow)
+    columns = cv2.transpose(image.reshape(h, w * cn))
+    out = np.empty((oh, ow, cn), np.uint8)
+    _resize_area_u8(columns, cn, ystart, yindex, yalpha, xstart, xindex, xalpha, out)
+    return out
+
+
+@kernel
+def _box_table(origin, extent, src, dst):  # pragma: no cover - compiled
+    """``_area_table``'s layout for a window ``[origin, origin + extent)`` of ``src`` pixels.
+
+    Source pixels outside ``0 .. src - 1`` are clamped to the edge (replicated border).
+    """
+    cell = extent / dst
+    count = 0
+    for d in range(dst):
+        lo, hi = origin + d * cell, origin + (d + 1) * cell
+        count += math.ceil(hi) - math.floor(lo)
+    start = np.zeros(dst + 1, np.int64)
+    index = np.empty(count, np.int64)
+    alpha = np.empty(count, np.float32)
+    k = 0
+    for d in range(dst):
+        lo, hi = origin + d * cell, origin + (d + 1) * cell
+        for s in range(math.floor(lo), math.ceil(hi)):
+            overlap = min(hi, s + 1.0) - max(lo, float(s))
+            if overlap > 1e-9:
+                index[k] = min(max(s, 0), src - 1)
+                alpha[k] = np.float32(overlap / cell)
+                k += 1
+        start[d + 1] = k
+    return start, index[:k], alpha[:k]
 
 
 def _opencv(image: np.ndarray, out_hw: tuple[int, int]) -> np.ndarray:
