@@ -16,7 +16,6 @@ from .errors import (
     NotInitializedError,
     UnknownPresetError,
 )
-from .features import warm_up
 from .presets import (
     ARCF_H,
     ARCF_HC,
@@ -28,6 +27,7 @@ from .presets import (
     make_params,
 )
 from .tracker import ARCFTracker, TrackResult, create_tracker
+from .warmup import warm_up
 
 __version__ = "0.1.0"
 

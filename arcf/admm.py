@@ -32,6 +32,8 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.fft as sfft
 
+from ._jit import fma32, kernel
+
 
 @dataclass(frozen=True)
 class Crop:
@@ -81,7 +83,7 @@ def solve_filter(
     t = float(shape[0] * shape[1])
     x = model_xf
     xc = np.conj(x)
-    s_xx = np.einsum("dhw,dhw->hw", xc, x).real  # Σ_d |x̂_d|², (H, W')
+    s_xx = np.ascontiguousarray(np.einsum("dhw,dhw->hw", xc, x).real)  # Σ_d |x̂_d|², (H, W')
     y_tilde = yf if target_f is None or gamma == 0 else yf + gamma * np.conj(target_f)
     x_y = x * y_tilde  # x̂ ỹ, (D, H, W')
     sxx_y = s_xx * y_tilde
@@ -95,29 +97,116 @@ def solve_filter(
         inv = sfft.ifft2
         fwd = sfft.fft2
 
+    # The compiled g-step (NumPy's arithmetic, bit for bit) takes the usual complex64 arrays.
+    fused = x.dtype == x_y.dtype == sxx_y.dtype == np.complex64 and all(
+        a.flags.c_contiguous for a in (x, x_y, sxx_y, s_xx))
     g_f = np.zeros_like(x)
     h_f = np.zeros_like(x)
     l_f = np.zeros_like(x)
     mu = mu_init
     scale = 1.0 + gamma
     for _ in range(iterations):
-        # g-step: closed form per frequency (Sherman–Morrison)
-        b = s_xx + t * mu / scale
-        s_lx = np.einsum("dhw,dhw->hw", xc, l_f)
-        s_hx = np.einsum("dhw,dhw->hw", xc, h_f)
-        coef = (sxx_y / (t * mu) - s_lx / mu + s_hx) / b  # (H, W')
-        g_f = x_y * (1.0 / (t * mu))
-        g_f -= l_f * (1.0 / mu)
-        g_f += h_f
-        g_f -= x * coef
+        if fused:
+            # The same float32 operations as the NumPy lines below, in one pass (_g_step).
+            _g_step(
+                x, x_y, sxx_y, s_xx, l_f, h_f, np.float32(t * mu / scale),
+                np.float32(1) / np.float32(t * mu), np.float32(1) / np.float32(mu),
+                np.float32(1.0 / (t * mu)), np.float32(1.0 / mu), g_f,
+            )
+            h = inv(_weighted_sum(np.float32(mu), g_f, l_f))
+        else:
+            # g-step: closed form per frequency (Sherman–Morrison)
+            b = s_xx + t * mu / scale
+            s_lx = np.einsum("dhw,dhw->hw", xc, l_f)
+            s_hx = np.einsum("dhw,dhw->hw", xc, h_f)
+            coef = (sxx_y / (t * mu) - s_lx / mu + s_hx) / b  # (H, W')
+            g_f = x_y * (1.0 / (t * mu))
+            g_f -= l_f * (1.0 / mu)
+            g_f += h_f
+            g_f -= x * coef
+            h = inv(mu * g_f + l_f)
         # h-step: closed form in the spatial domain, then BACF's crop
-        h = inv(mu * g_f + l_f)
         h *= t / (mu * t + admm_lambda)
         h_f = fwd(crop.apply(h)).astype(x.dtype, copy=False)
         # Lagrange multiplier and penalty
-        l_f += mu * (g_f - h_f)
+        if fused:
+            _add_scaled_difference(l_f, np.float32(mu), g_f, h_f)
+        else:
+            l_f += mu * (g_f - h_f)
         mu = min(mu_scale_step * mu, mu_max)
     return g_f.astype(x.dtype, copy=False), h_f
+
+
+@kernel
+def _g_step(
+    x, x_y, sxx_y, s_xx, l_f, h_f, b_shift, inv_tmu, inv_mu, c_tmu, c_mu, g_f
+):  # pragma: no cover - compiled
+    """The g-step of one ADMM iteration, per frequency, as ``solve_filter``'s NumPy lines.
+
+    ``b = Σ|x̂|² + Tμ/(1+γ)``; ``coef = (Σ|x̂|² ỹ / (Tμ) - Σ conj(x̂) ζ̂ / μ + Σ conj(x̂) ĥ) /
+    b``; ``ĝ = x̂ ỹ / (Tμ) - ζ̂ / μ + ĥ - x̂ coef``. Every operation is NumPy's, in its order
+    and rounding: ``einsum``'s plain complex products summed over channels in order, division
+    by a real as multiplication by its float32 reciprocal, complex products with one FMA per
+    part (``fma32``). Arrays are complex64 ``(D, H, W')``, ``(H, W')`` for the sums; loops run
+    over the channel outside and the frequencies inside, which vectorises.
+    """
+    n_d = x.shape[0]
+    n_k = x.shape[1] * x.shape[2]
+    xs, xys = x.reshape(n_d, n_k), x_y.reshape(n_d, n_k)
+    ls, hs, gs = l_f.reshape(n_d, n_k), h_f.reshape(n_d, n_k), g_f.reshape(n_d, n_k)
+    sxy = sxx_y.reshape(n_k)
+    sxx = s_xx.reshape(n_k)
+    lr = np.zeros(n_k, np.float32)
+    li = np.zeros(n_k, np.float32)
+    hr = np.zeros(n_k, np.float32)
+    hi = np.zeros(n_k, np.float32)
+    for d in range(n_d):
+        for k in range(n_k):
+            xr, xi = xs[d, k].real, -xs[d, k].imag  # conj(x̂)
+            zr, zi = ls[d, k].real, ls[d, k].imag
+            lr[k] = lr[k] + (xr * zr - xi * zi)
+            li[k] = li[k] + (xr * zi + xi * zr)
+            zr, zi = hs[d, k].real, hs[d, k].imag
+            hr[k] = hr[k] + (xr * zr - xi * zi)
+            hi[k] = hi[k] + (xr * zi + xi * zr)
+    cr = np.empty(n_k, np.float32)
+    ci = np.empty(n_k, np.float32)
+    for k in range(n_k):
+        scl = np.float32(1.0) / (sxx[k] + b_shift)
+        cr[k] = ((sxy[k].real * inv_tmu - lr[k] * inv_mu) + hr[k]) * scl
+        ci[k] = ((sxy[k].imag * inv_tmu - li[k] * inv_mu) + hi[k]) * scl
+    for d in range(n_d):
+        for k in range(n_k):
+            gr = xys[d, k].real * c_tmu
+            gi = xys[d, k].imag * c_tmu
+            gr = gr - ls[d, k].real * c_mu
+            gi = gi - ls[d, k].imag * c_mu
+            gr = gr + hs[d, k].real
+            gi = gi + hs[d, k].imag
+            ar, ai = xs[d, k].real, xs[d, k].imag
+            gr = gr - fma32(ar, cr[k], -(ai * ci[k]))
+            gi = gi - fma32(ar, ci[k], ai * cr[k])
+            gs[d, k] = complex(gr, gi)
+
+
+@kernel
+def _weighted_sum(mu, g_f, l_f):  # pragma: no cover - compiled
+    """``μ ĝ + ζ̂`` (complex64), as NumPy rounds it."""
+    out = np.empty_like(g_f)
+    flat_g, flat_l, flat_o = g_f.reshape(-1), l_f.reshape(-1), out.reshape(-1)
+    for k in range(flat_g.size):
+        flat_o[k] = complex(mu * flat_g[k].real + flat_l[k].real,
+                            mu * flat_g[k].imag + flat_l[k].imag)
+    return out
+
+
+@kernel
+def _add_scaled_difference(l_f, mu, g_f, h_f):  # pragma: no cover - compiled
+    """``ζ̂ += μ (ĝ - ĥ)`` in place (complex64), as NumPy rounds it."""
+    flat_l, flat_g, flat_h = l_f.reshape(-1), g_f.reshape(-1), h_f.reshape(-1)
+    for k in range(flat_l.size):
+        flat_l[k] = complex(flat_l[k].real + mu * (flat_g[k].real - flat_h[k].real),
+                            flat_l[k].imag + mu * (flat_g[k].imag - flat_h[k].imag))
 
 
 def objective(

@@ -67,7 +67,7 @@ def test_kernels_compile_in_memory_when_no_cache_can_be_written(monkeypatch) -> 
     the kernels then compile without one instead of breaking the library's import."""
     import numba
 
-    from arcf.features import _jit
+    from arcf import _jit
 
     real_njit = numba.njit
 

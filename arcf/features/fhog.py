@@ -51,7 +51,7 @@ from typing import Literal
 import cv2
 import numpy as np
 
-from ._jit import kernel
+from .._jit import kernel
 from .sse import SSETables
 
 __all__ = ["Arithmetic", "ArithmeticMode", "fhog", "fhog_num_channels"]

@@ -11,9 +11,9 @@ from pathlib import Path
 
 import numpy as np
 
+from .._jit import kernel
 from ..data import COLORNAMES_ENV, default_colornames_path
 from ..errors import ColorNamesNotFoundError
-from ._jit import kernel
 
 CN_SHA256 = "e056387d4bc872167cfb2519693d7dce9a25d07dc3a867c5b22e86d2caf5689c"
 

@@ -31,7 +31,7 @@ from functools import lru_cache
 import cv2
 import numpy as np
 
-from ._jit import kernel
+from .._jit import kernel
 
 __all__ = ["resample_area", "resize_area"]
 
