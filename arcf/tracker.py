@@ -31,7 +31,14 @@ from .features.extract import FeatureExtractor
 from .features.fhog import Arithmetic as FhogArithmetic
 from .features.patches import bacf_patch, matlab_round, pyramid_windows
 from .features.sse import load_sse_tables
-from .fourier import gaussian_label, hann2d, newton_peak, peak_to_sidelobe, spatial_response
+from .fourier import (
+    correlate,
+    gaussian_label,
+    hann2d,
+    newton_peak,
+    peak_to_sidelobe,
+    spatial_response,
+)
 from .presets import TrackerParams, make_params
 from .scale import DSSTScaleFilter, scale_limits, search_scale_factors
 
@@ -131,7 +138,7 @@ class ARCFTracker:
         self._model_xf = xf
         self._g_f = self._solve(None)
         first = spatial_response(
-            np.sum(np.conj(self._g_f) * self._model_xf, axis=0), self._use_sz, self._hermitian
+            correlate(self._g_f, self._model_xf[None])[0], self._use_sz, self._hermitian
         )
         self._m_prev = sfft.fftshift(first)
         self._p_prev = peak_index(self._m_prev)
@@ -255,7 +262,7 @@ class ARCFTracker:
         sample_pos = self._sample_pos()
         patches = self._patches(image, sample_pos, self._scale_factors)
         xtf = self._fwd(self._extractor(patches, self._color) * self._window)  # (S, D, H, W')
-        rf = np.sum(np.conj(self._g_f)[None] * xtf, axis=1)  # (S, H, W')
+        rf = correlate(self._g_f, xtf)  # (S, H, W')
         if rf.shape[0] == 1:
             response = spatial_response(rf[0], self._use_sz, self._hermitian)[None]
         else:

@@ -22,6 +22,7 @@ def warm_up() -> float:
     from .features.patches import pyramid_windows
     from .features.pixel import cell_average
     from .features.resize import resize_area
+    from .fourier import correlate
 
     t0 = time.perf_counter()
     patch = np.arange(9 * 9 * 3, dtype=np.uint8).reshape(1, 9, 9, 3)
@@ -30,6 +31,7 @@ def warm_up() -> float:
     resize_area(patch[0], (4, 4))
     pyramid_windows(np.zeros((40, 40, 3), np.uint8), (20.0, 20.0), [(36, 36)], (8, 8))
     spectrum = np.ones((2, 4, 4), np.complex64)
+    correlate(spectrum, spectrum[None])
     label = np.ones((4, 4), np.complex64)
     for hermitian in (True, False):
         solve_filter(spectrum[..., : 3 if hermitian else 4], label[:, : 3 if hermitian else 4],
