@@ -550,29 +550,38 @@ def _release_orientation(
     every rounding is the toolbox's.  ``rsqrt`` is the model (``_release_rsqrt``) or, with
     ``tables``, the measured instruction (exact for ``4 m2`` too: it scales with the exponent).
     """
-    shape = gx.shape
     rsqrt = _release_rsqrt if tables is None else tables.rsqrt_into
     half_m = rsqrt(mag2, out=mag2)
-    np.minimum(half_m, _HALF_RSQRT_CAP, out=half_m)
-    t = _scratch("rel_t", shape, np.float32)
-    np.multiply(gx, half_m, out=t)
-    t *= _ACOS_MULT
-    sign = _scratch("rel_sign", shape, np.uint32)
-    np.bitwise_and(gy.view(np.uint32), _SIGN_BIT, out=sign)
-    np.bitwise_xor(t.view(np.uint32), sign, out=t.view(np.uint32))
-    # |t| <= 10000 * (1 + rsqrt's relative error) << 10010 for finite input; the clip only
-    # guards against inf / nan.
-    np.clip(t, -_ACOS_OFFSET, _ACOS_OFFSET - 1, out=t)
-    key = _scratch("rel_key", shape, np.int32)
-    np.copyto(key, t, casting="unsafe")  # C cast: truncation toward zero
-    neg = _scratch("rel_neg", shape, np.bool_)
-    np.less(gy, 0, out=neg)
-    key += np.int32(_ACOS_OFFSET)
-    np.add(key, neg.view(np.uint8) * np.int32(_ACOS_LEN), out=key)
-    offsets = _release_plane_offsets(n_orients, plane)
-    start = _scratch("start", (key.size,), np.int32)
-    np.take(offsets, key.reshape(-1), out=start)
+    start = _scratch("start", (gx.size,), np.int32)
+    _release_keys(gx.reshape(-1), gy.reshape(-1), half_m.reshape(-1),
+                  _release_plane_offsets(n_orients, plane), start)
     return start
+
+
+@kernel
+def _release_keys(gx, gy, half_m, offsets, start):  # pragma: no cover - compiled
+    """``_release_orientation``'s per-pixel steps after ``rsqrt``, in one pass.
+
+    ``half_m = min(half_m, cap)`` (in place, as the magnitude needs it), ``t = (gx half_m)
+    10000`` in float32, negated where gy's sign bit is set (negation flips exactly that bit),
+    clipped to the table, truncated toward zero, offset into the ``gy < 0`` half of the table
+    where ``gy < 0``, and looked up in ``offsets``. A NaN (impossible for finite pixels) reads
+    the table's centre.
+    """
+    cap = np.float32(_HALF_RSQRT_CAP)
+    mult = np.float32(_ACOS_MULT)
+    lo, hi = np.float32(-_ACOS_OFFSET), np.float32(_ACOS_OFFSET - 1)
+    for p in range(gx.size):
+        hm = min(half_m[p], cap)
+        half_m[p] = hm
+        t = (gx[p] * hm) * mult
+        if math.copysign(1.0, gy[p]) < 0:
+            t = -t
+        t = max(min(t, hi), lo)
+        key = (int(t) if t == t else 0) + _ACOS_OFFSET
+        if gy[p] < 0:
+            key += _ACOS_LEN
+        start[p] = offsets[key]
 
 
 @lru_cache(maxsize=16)
