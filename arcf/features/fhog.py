@@ -43,7 +43,6 @@ from __future__ import annotations
 
 import math
 import threading
-from collections.abc import Iterator
 from fractions import Fraction
 from functools import lru_cache
 from typing import Literal
@@ -51,7 +50,7 @@ from typing import Literal
 import cv2
 import numpy as np
 
-from .._jit import kernel
+from .._jit import fma32, kernel
 from .sse import SSETables
 
 __all__ = ["Arithmetic", "ArithmeticMode", "fhog", "fhog_num_channels"]
@@ -68,9 +67,6 @@ _TEXTURE_WEIGHT = np.float32(0.2357)
 #: Working-set budget per chunk of a batch (bytes), sized for a 2-4 MB L2 cache; see
 #: ``_chunk_size``.
 _CHUNK_BYTES = 3 << 20
-
-#: Dtypes (and channel counts) that ``cv2.split`` handles; others use a strided numpy copy.
-_CV2_SPLIT_DTYPES = (np.uint8, np.uint16, np.int16, np.float32, np.float64)
 
 
 def fhog_num_channels(n_orients: int = 9) -> int:
@@ -253,115 +249,85 @@ def _scratch(name: str, shape: tuple[int, ...], dtype: type) -> np.ndarray:
 # --------------------------------------------------------------------------------------------
 
 
-def _float_planes(x: np.ndarray) -> Iterator[np.ndarray]:
-    """Yield the C channels of ``(N, H, W, C)`` as contiguous float32 planes ``(N * H, W)``.
-
-    One plane at a time in a single scratch buffer (small working set); each yielded plane is
-    only valid until the next one is requested.  A float32 grey input is yielded as a view.
-    """
-    n_img, height, width, channels = x.shape
-    rows = n_img * height
-    if channels == 1:
-        sources = [x.reshape(rows, width)]
-        if sources[0].dtype == np.float32 and sources[0].flags.c_contiguous:
-            yield sources[0]
-            return
-    elif channels <= 4 and x.dtype in _CV2_SPLIT_DTYPES:
-        split = [_scratch(f"split{c}", (rows, width), x.dtype) for c in range(channels)]
-        sources = list(cv2.split(np.ascontiguousarray(x).reshape(rows, width, channels), split))
-        if x.dtype == np.float32:
-            yield from sources
-            return
-    else:
-        sources = list(np.moveaxis(x.reshape(rows, width, channels), -1, 0))
-    plane = _scratch("plane", (rows, width), np.float32)
-    for src in sources:
-        np.copyto(plane, src, casting="unsafe")
-        yield plane
-
-
-def _doubled_gradient(plane: np.ndarray, n_img: int, gx: np.ndarray, gy: np.ndarray) -> None:
-    """Write the toolbox's derivatives of ``plane`` ``(N * H, W)``, times two, to ``gx``, ``gy``.
-
-    Interior: ``I[i+1] - I[i-1]`` (twice the central difference); first/last index:
-    ``2 (I[1] - I[0])`` / ``2 (I[n-1] - I[n-2])`` (the toolbox's un-halved one-sided
-    difference); zero along an axis of length 1.  Doubling is exact in floating point, so bins
-    and channel choices are unaffected; the factor 1/2 is folded into the voting weights.  The
-    operands are subtracted in the toolbox's order, so even the sign of a zero difference is the
-    toolbox's (``x - x = +0``; ``-(x - x) = -0`` would flip the release arithmetic's orientation,
-    which reads gy's sign bit).  Each interior is a single shifted subtraction over the
-    flattened batch; the columns / rows where that straddles two rows or two images are then
-    overwritten by the border rule.
-    """
-    rows, width = plane.shape
-    height = rows // n_img
-    flat = plane.reshape(-1)
-    if width > 1:
-        np.subtract(flat[2:], flat[:-2], out=gx.reshape(-1)[1:-1])
-        if width >= 4:  # both border columns in one strided view: columns (0, W-1)
-            edge = gx[:, :: width - 1]
-            # (I[1] - I[0], I[W-1] - I[W-2]): columns (1, W-1) minus columns (0, W-2).
-            np.subtract(plane[:, 1 :: width - 2], plane[:, : width - 1 : width - 2], out=edge)
-            edge *= np.float32(2.0)
-        else:
-            for dst, a, b in ((0, 1, 0), (width - 1, width - 1, width - 2)):
-                col = gx[:, dst]
-                np.subtract(plane[:, a], plane[:, b], out=col)
-                col *= 2.0
-    else:
-        gx.fill(0.0)
-    if height > 1:
-        np.subtract(flat[2 * width :], flat[: -2 * width], out=gy.reshape(-1)[width:-width])
-        p3 = plane.reshape(n_img, height, width)
-        g3 = gy.reshape(n_img, height, width)
-        if height >= 4:  # rows (0, H-1) of every image
-            edge = g3[:, :: height - 1]
-            np.subtract(p3[:, 1 :: height - 2], p3[:, : height - 1 : height - 2], out=edge)
-            edge *= np.float32(2.0)
-        else:
-            for dst, a, b in ((0, 1, 0), (height - 1, height - 1, height - 2)):
-                row = g3[:, dst]
-                np.subtract(p3[:, a], p3[:, b], out=row)
-                row *= 2.0
-    else:
-        gy.fill(0.0)
-
-
 def _dominant_gradient(
     x: np.ndarray, h0: int, w0: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Doubled gradient of the channel with the largest magnitude, cropped to ``(h0, w0)``.
 
     Returns three contiguous float32 scratch arrays ``(N, h0, w0)``: ``2 gx``, ``2 gy`` and
-    ``4 (gx^2 + gy^2)``.  Like the toolbox, a channel replaces the current best only if its
-    squared magnitude is strictly larger, so the first channel wins ties.
+    ``4 (gx^2 + gy^2)`` (see ``_gradient_kernel``).
     """
-    n_img, height, width, _ = x.shape
-    shape = (n_img * height, width)
-    gx, gy, m2 = (_scratch(name, shape, np.float32) for name in ("gx", "gy", "m2"))
-    for c, plane in enumerate(_float_planes(x)):
-        if c == 0:
-            cgx, cgy, cm2 = gx, gy, m2
-        else:
-            cgx, cgy, cm2 = (_scratch(n, shape, np.float32) for n in ("cgx", "cgy", "cm2"))
-        _doubled_gradient(plane, n_img, cgx, cgy)
-        cv2.multiply(cgx, cgx, cm2)
-        cv2.accumulateSquare(cgy, cm2)  # cm2 += cgy^2 without a temporary
-        if c > 0:
-            # Masked copies: branch-free SIMD in OpenCV (np.where / np.copyto(where=) are ~30x
-            # slower on the random masks of natural images).
-            better = cv2.compare(cm2, m2, cv2.CMP_GT, _scratch("mask", shape, np.uint8))
-            cv2.copyTo(cgx, better, gx)
-            cv2.copyTo(cgy, better, gy)
-            cv2.max(m2, cm2, m2)
-    if h0 == height and w0 == width:
-        return gx.reshape(n_img, h0, w0), gy.reshape(n_img, h0, w0), m2.reshape(n_img, h0, w0)
-    cropped = []
-    for name, a in (("crop_gx", gx), ("crop_gy", gy), ("crop_m2", m2)):
-        dst = _scratch(name, (n_img, h0, w0), np.float32)
-        np.copyto(dst, a.reshape(n_img, height, width)[:, :h0, :w0])
-        cropped.append(dst)
-    return cropped[0], cropped[1], cropped[2]
+    n_img = x.shape[0]
+    gx, gy, m2 = (_scratch(name, (n_img, h0, w0), np.float32) for name in ("gx", "gy", "m2"))
+    _gradient_kernel(np.ascontiguousarray(x), gx, gy, m2)
+    return gx, gy, m2
+
+
+@kernel
+def _gradient_kernel(x, gx, gy, m2):  # pragma: no cover - compiled
+    """The toolbox's per-pixel gradient, doubled, of the channel with the largest magnitude.
+
+    Pixels are converted to float32 first. Interior: ``I[i+1] - I[i-1]`` (twice the central
+    difference); first / last index: ``2 (I[1] - I[0])`` / ``2 (I[n-1] - I[n-2])`` (the
+    toolbox's un-halved one-sided difference); zero along an axis of length 1. Doubling is
+    exact, so bins and channel choices are unaffected; the 1/2 is folded into the voting
+    weights. Operands are subtracted in the toolbox's order, so even the sign of a zero
+    difference is the toolbox's (``x - x = +0``; the release arithmetic reads gy's sign bit).
+    ``m2 = fma(gy, gy, gx gx)`` as OpenCV's ``accumulateSquare`` (the earlier implementation)
+    computed it; a channel replaces the current best only if its ``m2`` is strictly larger,
+    so the first channel wins ties, as in the toolbox. ``x`` is ``(N, H, W, C)``; the outputs
+    ``(N, h0, w0)`` are the top-left crop (the gradient itself uses the whole image).
+    """
+    n_img, height, width, channels = x.shape
+    h0, w0 = gx.shape[1], gx.shape[2]
+    two = np.float32(2.0)
+    # float32 copies of the rows above / at / below, one channel after the other
+    up = np.empty((channels, width), np.float32)
+    mid = np.empty((channels, width), np.float32)
+    down = np.empty((channels, width), np.float32)
+    dx = np.empty(w0, np.float32)
+    dy = np.empty(w0, np.float32)
+    mag = np.empty(w0, np.float32)
+    for i in range(n_img):
+        for r in range(h0):
+            # the rows the vertical difference reads: (down - up), doubled at the borders
+            r_up, r_down = max(r - 1, 0), min(r + 1, height - 1)
+            for c in range(channels):
+                for col in range(width):
+                    up[c, col] = np.float32(x[i, r_up, col, c])
+                    mid[c, col] = np.float32(x[i, r, col, c])
+                    down[c, col] = np.float32(x[i, r_down, col, c])
+            border_row = height > 1 and (r == 0 or r == height - 1)
+            for c in range(channels):
+                u, m, d = up[c], mid[c], down[c]
+                for col in range(w0):
+                    dy[col] = d[col] - u[col]
+                if height == 1:
+                    dy[:] = 0.0
+                elif border_row:
+                    for col in range(w0):
+                        dy[col] = dy[col] * two
+                if width == 1:
+                    dx[:] = 0.0
+                else:
+                    for col in range(1, min(w0, width - 1)):
+                        dx[col] = m[col + 1] - m[col - 1]
+                    dx[0] = (m[1] - m[0]) * two
+                    if w0 == width:
+                        dx[width - 1] = (m[width - 1] - m[width - 2]) * two
+                for col in range(w0):
+                    mag[col] = fma32(dy[col], dy[col], dx[col] * dx[col])
+                if c == 0:
+                    for col in range(w0):
+                        gx[i, r, col] = dx[col]
+                        gy[i, r, col] = dy[col]
+                        m2[i, r, col] = mag[col]
+                else:
+                    for col in range(w0):
+                        if mag[col] > m2[i, r, col]:
+                            gx[i, r, col] = dx[col]
+                            gy[i, r, col] = dy[col]
+                            m2[i, r, col] = mag[col]
 
 
 # --------------------------------------------------------------------------------------------

@@ -167,13 +167,14 @@ def _resize_area_u8(
 ):  # pragma: no cover - compiled
     """The kernel: transposed source ``(W C, H)`` uint8 -> ``(oh, ow, C)`` uint8.
 
-    For one destination column and channel at a time: ``row[r]`` = the horizontal sum of
-    source row ``r`` (OpenCV's ``buf[dx]``, the same additions in the same order, vectorised
-    over ``r``), then each destination pixel is OpenCV's vertical sum of those, rounded half to
-    even and saturated.
+    First the horizontal sums of every source row (OpenCV's ``buf``), one destination column
+    and channel at a time, vectorised over the rows; then each destination row is OpenCV's
+    vertical sum of those rows, vectorised along the row, rounded half to even and saturated.
     """
     oh, ow, _ = out.shape
     h = columns.shape[1]
+    width = ow * cn
+    rows = np.empty((h, width), np.float32)  # the horizontally reduced source rows
     row = np.empty(h, np.float32)
     for dx in range(ow):
         for c in range(cn):
@@ -187,10 +188,22 @@ def _resize_area_u8(
                 a = xalpha[k]
                 for r in range(h):
                     row[r] = row[r] + np.float32(src[r]) * a
-            for dy in range(oh):
-                j0 = ystart[dy]
-                s = yalpha[j0] * row[yindex[j0]]
-                for j in range(j0 + 1, ystart[dy + 1]):
-                    s = s + yalpha[j] * row[yindex[j]]
-                v = np.rint(s)
-                out[dy, dx, c] = 0 if v < 0 else (255 if v > 255 else np.uint8(v))
+            q = dx * cn + c
+            for r in range(h):
+                rows[r, q] = row[r]
+    acc = np.empty(width, np.float32)
+    flat = out.reshape(oh, width)
+    for dy in range(oh):
+        j0 = ystart[dy]
+        beta = yalpha[j0]
+        src_row = rows[yindex[j0]]
+        for q in range(width):
+            acc[q] = beta * src_row[q]
+        for j in range(j0 + 1, ystart[dy + 1]):
+            beta = yalpha[j]
+            src_row = rows[yindex[j]]
+            for q in range(width):
+                acc[q] = acc[q] + beta * src_row[q]
+        for q in range(width):
+            v = np.rint(acc[q])
+            flat[dy, q] = 0 if v < 0 else (255 if v > 255 else np.uint8(v))
