@@ -31,20 +31,30 @@ def cell_average(maps: np.ndarray, cell: int) -> np.ndarray:
     n, h, w, c = maps.shape
     out = np.empty((n, h // cell, w // cell, c), np.float32)
     if out.size:
-        _cell_sums(np.ascontiguousarray(maps, np.float32), cell, out)
+        _cell_sums(np.ascontiguousarray(maps, np.float32), _NO_INDEX, _NO_TABLE, cell, out)
     return out
 
 
+#: Placeholders for the unused inputs of ``_cell_sums``.
+_NO_MAPS = np.zeros((0, 0, 0, 0), np.float32)
+_NO_INDEX = np.zeros((0, 0, 0), np.int32)
+_NO_TABLE = np.zeros((0, 0), np.float32)
+
+
 @kernel
-def _cell_sums(maps, cell, out):  # pragma: no cover - compiled
+def _cell_sums(maps, index, table, cell, out):  # pragma: no cover - compiled
     """``cell_average``'s kernel; the same float32 additions in the same order as the release.
+
+    The maps are ``maps`` (N, H, W, C), or, when ``table`` (K, C) is not empty, the rows of
+    ``table`` that ``index`` (N, H, W) selects (Color Names, without materialising the
+    looked-up maps).
 
     ``col[x]`` is the integral image's column sum down to the current row (``cumsum`` along
     the rows); at the bottom row of each cell row, its running sum along the row gives the
     integral image at the cell corners (``cur``), and each cell is ``((I11 - I10) - I01) + I00``
     over the cell area, as MATLAB evaluates the release's expression.
     """
-    n, _, _, c = maps.shape
+    n, c = out.shape[0], out.shape[3]
     hb, wb = out.shape[1], out.shape[2]
     width = wb * cell
     area = np.float32(cell * cell)
@@ -56,9 +66,15 @@ def _cell_sums(maps, cell, out):  # pragma: no cover - compiled
         col[:] = 0.0
         prev[:] = 0.0
         for r in range(hb * cell):
-            for x in range(width):
-                for k in range(c):
-                    col[x, k] += maps[i, r, x, k]
+            if table.shape[0] == 0:
+                for x in range(width):
+                    for k in range(c):
+                        col[x, k] += maps[i, r, x, k]
+            else:
+                for x in range(width):
+                    values = table[index[i, r, x]]
+                    for k in range(c):
+                        col[x, k] += values[k]
             if (r + 1) % cell:
                 continue
             run[:] = 0.0
@@ -112,7 +128,11 @@ class ColorNames:
         """(N, H, W, 3) RGB uint8 -> (N, H//cell, W//cell, 10) float32."""
         p = patches.astype(np.int32) >> 3
         index = p[..., 0] + 32 * p[..., 1] + 1024 * p[..., 2]  # R//8 + 32 G//8 + 1024 B//8
-        return cell_average(self.table[index], cell)
+        n, h, w, _ = patches.shape
+        out = np.empty((n, h // cell, w // cell, self.table.shape[1]), np.float32)
+        if out.size:  # = cell_average(self.table[index], cell), without the looked-up maps
+            _cell_sums(_NO_MAPS, index, self.table, cell, out)
+        return out
 
 
 @lru_cache(maxsize=4)
