@@ -9,7 +9,7 @@ import scipy.fft as sfft
 
 from .features.fhog import Arithmetic as FhogArithmetic
 from .features.fhog import fhog
-from .features.patches import crop_replicate, pyramid_windows, resize_auto
+from .features.patches import pyramid_windows, release_windows
 from .presets import ScaleFilterParams
 
 
@@ -88,9 +88,7 @@ class DSSTScaleFilter:
         if self.sampling == "pyramid":
             patches = pyramid_windows(image, pos, sizes, self.model_sz)
         else:
-            fr, fc = math.floor(pos[0]), math.floor(pos[1])
-            windows = (crop_replicate(image, fr - h // 2, fc - w // 2, h, w) for h, w in sizes)
-            patches = np.stack([resize_auto(win, self.model_sz) for win in windows])
+            patches = release_windows(image, pos, sizes, self.model_sz)
         feats = fhog(patches, 4, arithmetic=self.fhog_arithmetic)  # (S, h, w, 31)
         # column-major (MATLAB's temp(:)) order of each scale's (h, w, 31) block
         xs = feats.transpose(0, 3, 2, 1).reshape(len(patches), -1).T.astype(np.float64)

@@ -29,7 +29,7 @@ from .admm import Crop, solve_filter
 from .errors import InvalidBoxError, InvalidFrameError, NotInitializedError, UnknownPresetError
 from .features.extract import FeatureExtractor
 from .features.fhog import Arithmetic as FhogArithmetic
-from .features.patches import bacf_patch, matlab_round, pyramid_windows
+from .features.patches import matlab_round, pyramid_windows, release_windows
 from .features.sse import load_sse_tables
 from .fourier import (
     correlate,
@@ -338,7 +338,7 @@ class ARCFTracker:
         out_hw = (self._sample_sz, self._sample_sz)
         if self.params.sampling == "pyramid":
             return pyramid_windows(image, pos, [(s, s) for s in sides], out_hw)
-        return np.stack([bacf_patch(image, pos, (s, s), out_hw) for s in sides])
+        return release_windows(image, pos, [(s, s) for s in sides], out_hw)
 
     def _fwd(self, maps: np.ndarray) -> np.ndarray:
         return sfft.rfft2(maps) if self._hermitian else sfft.fft2(maps)

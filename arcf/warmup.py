@@ -19,7 +19,7 @@ def warm_up() -> float:
     """
     from .admm import Crop, solve_filter
     from .features.fhog import fhog
-    from .features.patches import pyramid_windows
+    from .features.patches import pyramid_windows, release_windows
     from .features.pixel import cell_average
     from .features.resize import resize_area
     from .fourier import correlate
@@ -29,7 +29,9 @@ def warm_up() -> float:
     fhog(patch, 4, arithmetic="release")
     cell_average(patch.astype(np.float32), 4)
     resize_area(patch[0], (4, 4))
-    pyramid_windows(np.zeros((40, 40, 3), np.uint8), (20.0, 20.0), [(36, 36)], (8, 8))
+    frame = np.zeros((40, 40, 3), np.uint8)
+    pyramid_windows(frame, (20.0, 20.0), [(36, 36)], (8, 8))
+    release_windows(frame, (20.0, 20.0), [(36, 36), (30, 30)], (8, 8))
     spectrum = np.ones((2, 4, 4), np.complex64)
     correlate(spectrum, spectrum[None])
     label = np.ones((4, 4), np.complex64)

@@ -149,3 +149,18 @@ def test_pyramid_windows_approximate_the_area_resize_of_large_windows() -> None:
             cf = np.nonzero(mf)[axis].mean()
             ce = np.nonzero(me)[axis].mean()
             assert abs(cf - ce) < 0.05
+
+
+def test_release_windows_are_bacf_patch_window_by_window() -> None:
+    """Nested windows sharing one cut and one transposition equal the release's sampler one by
+    one, whichever of mexResize's linear / area rules each window takes, also off the frame."""
+    from arcf.features.patches import bacf_patch, release_windows
+
+    rng = np.random.default_rng(23)
+    frame = rng.integers(0, 256, (240, 320, 3), dtype=np.uint8)
+    sizes = [(max(int(40 * 1.03**k), 2), max(int(90 * 1.03**k), 2)) for k in range(-16, 17)]
+    for pos, out_hw in (((120.4, 160.9), (16, 32)), ((5.0, 310.0), (16, 32)),
+                        ((120.0, 160.0), (30, 30))):
+        got = release_windows(frame, pos, sizes, out_hw)
+        for g, size in zip(got, sizes, strict=True):
+            np.testing.assert_array_equal(g, bacf_patch(frame, pos, size, out_hw))

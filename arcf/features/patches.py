@@ -11,7 +11,7 @@ import math
 import cv2
 import numpy as np
 
-from .resize import resample_area, resize_area
+from .resize import resample_area, resize_area, resize_area_windows
 
 
 def matlab_round(v: float) -> int:
@@ -78,6 +78,38 @@ def bacf_patch(
     top = math.floor(pos[0]) - sh // 2
     left = math.floor(pos[1]) - sw // 2
     return resize_auto(crop_replicate(image, top, left, sh, sw), out_hw)
+
+
+def release_windows(
+    image: np.ndarray,
+    pos: tuple[float, float],
+    sizes: list[tuple[int, int]],
+    out_hw: tuple[int, int],
+) -> np.ndarray:
+    """``bacf_patch`` of each ``(h, w)`` size around ``pos``, stacked: ``(N, oh, ow, C)``.
+
+    Bit for bit the release's sampler, window by window; the region covering all windows is
+    cut once and the area shrinks share one transposition (``resize_area_windows``).
+    """
+    sizes = [(h if h >= 1 else 2, w if w >= 1 else 2) for h, w in sizes]
+    fr, fc = math.floor(pos[0]), math.floor(pos[1])
+    boxes = [(fr - h // 2, fc - w // 2, h, w) for h, w in sizes]
+    top = min(b[0] for b in boxes)
+    left = min(b[1] for b in boxes)
+    bottom = max(b[0] + b[2] for b in boxes)
+    right = max(b[1] + b[3] for b in boxes)
+    region = crop_replicate(image, top, left, bottom - top, right - left)
+    local = [(t - top, c - left, h, w) for t, c, h, w in boxes]
+    oh, ow = out_hw
+    # mexResize's rule (resize_auto): area unless the new width exceeds the window's height
+    area = [i for i, (_, _, h, _) in enumerate(local) if ow <= h]
+    out = np.empty((len(sizes), oh, ow, image.shape[2]), np.uint8)
+    if area:
+        out[area] = resize_area_windows(region, [local[i] for i in area], out_hw)
+    for i, (t, c, h, w) in enumerate(local):
+        if ow > h:
+            out[i] = resize_auto(region[t: t + h, c: c + w], out_hw)
+    return out
 
 
 def pyramid_windows(

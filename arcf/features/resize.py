@@ -33,7 +33,7 @@ import numpy as np
 
 from .._jit import kernel
 
-__all__ = ["resample_area", "resize_area"]
+__all__ = ["resample_area", "resize_area", "resize_area_windows"]
 
 _DBL_EPSILON = 2.220446049250313e-16
 
@@ -85,11 +85,7 @@ def resize_area(image: np.ndarray, out_hw: tuple[int, int]) -> np.ndarray:
     """
     h, w = image.shape[:2]
     oh, ow = out_hw
-    if oh < 1 or ow < 1 or image.dtype != np.uint8 or image.ndim not in (2, 3):
-        return _opencv(image, out_hw)
-    sx, sy = 1.0 / (ow / w), 1.0 / (oh / h)  # OpenCV's scale_x, scale_y
-    integer = abs(sx - round(sx)) < _DBL_EPSILON and abs(sy - round(sy)) < _DBL_EPSILON
-    if sx < 1 or sy < 1 or integer:
+    if image.dtype != np.uint8 or image.ndim not in (2, 3) or not _kernel_shrink(h, w, out_hw):
         return _opencv(image, out_hw)
     cn = 1 if image.ndim == 2 else image.shape[2]
     # Column-major source: row r of the transposed (W C, H) matrix is one source column and
@@ -100,6 +96,45 @@ def resize_area(image: np.ndarray, out_hw: tuple[int, int]) -> np.ndarray:
     out = np.empty((oh, ow, cn), np.uint8)
     _resize_area_u8(columns, cn, ystart, yindex, yalpha, xstart, xindex, xalpha, out)
     return out if image.ndim == 3 else out[..., 0]
+
+
+def _kernel_shrink(h: int, w: int, out_hw: tuple[int, int]) -> bool:
+    """Whether OpenCV shrinks ``(h, w)`` to ``out_hw`` by its general area path (the kernel's):
+    a shrink along both axes that is not by whole factors (OpenCV's integer "fast" path)."""
+    oh, ow = out_hw
+    if oh < 1 or ow < 1:
+        return False
+    sx, sy = 1.0 / (ow / w), 1.0 / (oh / h)  # OpenCV's scale_x, scale_y
+    integer = abs(sx - round(sx)) < _DBL_EPSILON and abs(sy - round(sy)) < _DBL_EPSILON
+    return sx >= 1 and sy >= 1 and not integer
+
+
+def resize_area_windows(
+    region: np.ndarray, windows: list[tuple[int, int, int, int]], out_hw: tuple[int, int]
+) -> np.ndarray:
+    """``resize_area`` of several windows ``(top, left, h, w)`` of one ``(H, W, C)`` uint8 image.
+
+    The same result as resizing each crop on its own, bit for bit, with the image transposed
+    once for all of them (the DSST scale filter cuts 33 nested windows of one region twice a
+    frame; transposing each was a third of their cost). Returns ``(N, oh, ow, C)``.
+    """
+    height, width, cn = region.shape
+    oh, ow = out_hw
+    out = np.empty((len(windows), oh, ow, cn), np.uint8)
+    columns: np.ndarray | None = None
+    for i, (top, left, h, w) in enumerate(windows):
+        if top < 0 or left < 0 or top + h > height or left + w > width:
+            raise ValueError(f"window {(top, left, h, w)} leaves the {height}x{width} image")
+        if not _kernel_shrink(h, w, out_hw):
+            out[i] = _opencv(region[top: top + h, left: left + w], out_hw)
+            continue
+        if columns is None:
+            columns = cv2.transpose(region.reshape(height, width * cn))
+        ystart, yindex, yalpha = _area_table(h, oh)
+        xstart, xindex, xalpha = _area_table(w, ow)
+        view = columns[left * cn: (left + w) * cn, top: top + h]
+        _resize_area_u8(view, cn, ystart, yindex, yalpha, xstart, xindex, xalpha, out[i])
+    return out
 
 
 def resample_area(
