@@ -73,3 +73,33 @@ def test_images_within_the_limit_decode() -> None:
     assert image is None and problem is not None and problem[0] == "image_too_large"
     raw = SimpleNamespace(payload=bytes(6000 * 3), encoding="bgr8", width=100, height=60)
     assert decode_image(raw, max_pixels=5999)[1][0] == "image_too_large"
+
+
+def test_jpeg_frames_decode_to_opencvs_pixels() -> None:
+    """The fast JPEG path (simplejpeg) gives exactly cv2.imdecode's pixels: colour with 4:2:0
+    and 4:4:4 chroma, progressive, grey, real benchmark frames; a truncated stream is left to
+    OpenCV, which handles it as before."""
+    from pathlib import Path
+
+    from arcf.data import data_root
+
+    rng = np.random.default_rng(5)
+    colour = cv2.GaussianBlur(rng.integers(0, 256, (90, 130, 3), dtype=np.uint8), (0, 0), 2)
+    payloads = [
+        cv2.imencode(".jpg", colour, params)[1].tobytes()
+        for params in ([cv2.IMWRITE_JPEG_QUALITY, 95],
+                       [cv2.IMWRITE_JPEG_SAMPLING_FACTOR, cv2.IMWRITE_JPEG_SAMPLING_FACTOR_444],
+                       [cv2.IMWRITE_JPEG_PROGRESSIVE, 1])
+    ]
+    payloads.append(cv2.imencode(".jpg", cv2.cvtColor(colour, cv2.COLOR_BGR2GRAY))[1].tobytes())
+    payloads += [p.read_bytes() for p in sorted(Path(data_root()).glob("*/*/*/*.jpg"))[:3]]
+    payloads.append(payloads[0][: len(payloads[0]) * 2 // 3])  # truncated
+    for payload in payloads:
+        expected = cv2.imdecode(np.frombuffer(payload, np.uint8), cv2.IMREAD_UNCHANGED)
+        image, problem = decode_image(frame(payload, "jpeg"), max_pixels=10**8)
+        assert problem is None
+        if expected is None:  # OpenCV 5 refuses the truncated stream: so does decode_image
+            assert image is None
+            continue
+        assert image is not None and image.shape == expected.shape
+        np.testing.assert_array_equal(image, expected)
