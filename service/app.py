@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import logging
 import multiprocessing as mp
+import os
 import signal
 import sys
 import threading
@@ -99,11 +100,11 @@ class Service:
         # receive every frame just to count the untracked ones.
         self.watcher = (self.session.declare_subscriber(self.keys.all_frames(), untracked)
                         if s.mode == "router" else None)
-        self._wait_for_workers()
+        self._wait_for_workers(self.settings.worker_start_s)
         self.cluster.join()  # now others may hand streams to us, and we take ours
         return self
 
-    def _wait_for_workers(self, timeout: float = 30.0) -> None:
+    def _wait_for_workers(self, timeout: float) -> None:
         deadline = time.monotonic() + timeout
         key = self.keys.workers_of_instance(self.settings.instance_id)
         while time.monotonic() < deadline:
@@ -231,7 +232,18 @@ def main(argv: list[str] | None = None) -> int:
     service = Service(settings)
     signal.signal(signal.SIGTERM, service.request_stop)
     signal.signal(signal.SIGINT, service.request_stop)
-    service.start()
+    try:
+        service.start()
+    except Exception as exc:
+        # Without this, the threads already started (cluster, control plane) would keep a
+        # service that never became ready alive, silently: exit with the reason instead.
+        log.error("start-up failed: %s", exc)
+        try:
+            service.close()
+        except Exception:  # partly started: close what can be closed
+            log.debug("close after a failed start-up", exc_info=True)
+        print(f"arcf-service: start-up failed: {exc}", file=sys.stderr, flush=True)
+        os._exit(1)  # no thread left behind may keep a service that never became ready alive
     endpoints = ", ".join(settings.listen if settings.mode == "router" else settings.connect)
     print(f"arcf-service ready: zenoh {settings.mode} {endpoints}, prefix {settings.prefix}, "
           f"{settings.workers} workers, metrics {service.metrics_url or 'off'}", flush=True)

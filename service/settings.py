@@ -42,6 +42,10 @@ class ServiceSettings:
     metrics_port: int = 9464
     #: Zenoh lease (ms): how fast a hung peer is noticed.
     lease_ms: int = 10000
+    #: Seconds start-up waits for every worker to be ready. A worker loads the tracker's
+    #: compiled kernels first, or compiles them where no cache exists (~6 s, longer on a
+    #: loaded machine); past this the service exits with an error instead of serving.
+    worker_start_s: float = 120.0
     instance_id: str = field(default_factory=lambda: uuid.uuid4().hex[:8])
 
     def __post_init__(self) -> None:
@@ -51,6 +55,8 @@ class ServiceSettings:
             raise ValueError("client mode needs at least one connect endpoint")
         if self.workers < 1:
             raise ValueError("workers must be >= 1")
+        if not self.worker_start_s > 0:
+            raise ValueError("worker_start_s must be > 0")
         if self.frame_queue < 1:
             raise ValueError("frame_queue must be >= 1")
         if self.max_payload < 1024:

@@ -440,3 +440,21 @@ def test_sigterm_finishes_in_flight_frames_and_sends_final_statuses(frames) -> N
     assert stopped_in < 10  # bounded
     assert len(final) == 2 and {r.status for r in final} == {"stopped"}
     assert all(r.frame_seq == 2 and "shutting down" in (r.message or "") for r in final)
+
+
+def test_workers_not_ready_in_time_exit_with_the_reason_instead_of_hanging() -> None:
+    """A service whose workers miss the start-up deadline (here: an impossible one) exits
+    non-zero saying why; it never sits alive without having printed "ready"."""
+    import os
+    import subprocess
+    import sys
+
+    env = dict(os.environ, ARCF_SERVICE_WORKER_START_S="0.001")
+    proc = subprocess.run(
+        [sys.executable, "-m", "service.app", "--listen", "tcp/127.0.0.1:0", "--workers", "1",
+         "--metrics-port", "-1"],
+        env=env, capture_output=True, text=True, timeout=60,
+        cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    assert proc.returncode == 1
+    assert "ready" not in proc.stdout
+    assert "start-up failed: workers not ready" in proc.stderr
