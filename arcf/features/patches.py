@@ -74,10 +74,27 @@ def bacf_patch(
     1-based rows ``floor(pos) + (1..s) - floor(s/2)``, so the array index of the first row is
     ``floor(pos) - floor(s/2)``.
     """
-    sh, sw = (s if s >= 1 else 2 for s in size)
-    top = math.floor(pos[0]) - sh // 2
-    left = math.floor(pos[1]) - sw // 2
+    ((top, left, sh, sw),) = _placed(pos, [size])
     return resize_auto(crop_replicate(image, top, left, sh, sw), out_hw)
+
+
+def _placed(
+    pos: tuple[float, float], sizes: list[tuple[int, int]]
+) -> list[tuple[int, int, int, int]]:
+    """``(top, left, h, w)`` array indices of each window by the release's rule (a side below
+    one pixel becomes 2, as in ``get_pixels``)."""
+    fr, fc = math.floor(pos[0]), math.floor(pos[1])
+    boxes = []
+    for h, w in sizes:
+        h, w = (h if h >= 1 else 2), (w if w >= 1 else 2)
+        boxes.append((fr - h // 2, fc - w // 2, h, w))
+    return boxes
+
+
+def _cover(boxes: list[tuple[int, int, int, int]]) -> tuple[int, int, int, int]:
+    """``(top, left, bottom, right)`` of the region covering all ``boxes``."""
+    return (min(b[0] for b in boxes), min(b[1] for b in boxes),
+            max(b[0] + b[2] for b in boxes), max(b[1] + b[3] for b in boxes))
 
 
 def release_windows(
@@ -91,13 +108,8 @@ def release_windows(
     Bit for bit the release's sampler, window by window; the region covering all windows is
     cut once and the area shrinks share one transposition (``resize_area_windows``).
     """
-    sizes = [(h if h >= 1 else 2, w if w >= 1 else 2) for h, w in sizes]
-    fr, fc = math.floor(pos[0]), math.floor(pos[1])
-    boxes = [(fr - h // 2, fc - w // 2, h, w) for h, w in sizes]
-    top = min(b[0] for b in boxes)
-    left = min(b[1] for b in boxes)
-    bottom = max(b[0] + b[2] for b in boxes)
-    right = max(b[1] + b[3] for b in boxes)
+    boxes = _placed(pos, sizes)
+    top, left, bottom, right = _cover(boxes)
     region = crop_replicate(image, top, left, bottom - top, right - left)
     local = [(t - top, c - left, h, w) for t, c, h, w in boxes]
     oh, ow = out_hw
@@ -135,20 +147,13 @@ def pyramid_windows(
     the speed and the accuracy against the exact sampler).
     """
     oh, ow = out_hw
-    fr, fc = math.floor(pos[0]), math.floor(pos[1])
-    tops = [fr - max(h, 2) // 2 for h, _ in sizes]
-    lefts = [fc - max(w, 2) // 2 for _, w in sizes]
-    levels = [
-        max(0, math.floor(math.log2(min(max(h, 2) / oh, max(w, 2) / ow)))) for h, w in sizes
-    ]
+    boxes = _placed(pos, sizes)
+    levels = [max(0, math.floor(math.log2(min(h / oh, w / ow)))) for _, _, h, w in boxes]
     out = np.empty((len(sizes), oh, ow, image.shape[2]), np.uint8)
     deepest = max(levels)
     pyramid: list[np.ndarray] = []
     if deepest > 0:
-        top = min(t for t, k in zip(tops, levels, strict=True) if k)
-        left = min(c for c, k in zip(lefts, levels, strict=True) if k)
-        bottom = max(t + max(h, 2) for t, (h, _), k in zip(tops, sizes, levels, strict=True) if k)
-        right = max(c + max(w, 2) for c, (_, w), k in zip(lefts, sizes, levels, strict=True) if k)
+        top, left, bottom, right = _cover([b for b, k in zip(boxes, levels, strict=True) if k])
         step = 1 << deepest
         height = -(-(bottom - top) // step) * step  # whole 2^k blocks: extended down / right
         width = -(-(right - left) // step) * step
@@ -159,12 +164,11 @@ def pyramid_windows(
             if level.ndim < image.ndim:
                 level = level[..., None]
             pyramid.append(level)
-    for i, ((h, w), t, c, k) in enumerate(zip(sizes, tops, lefts, levels, strict=True)):
+    for i, ((t, c, h, w), k) in enumerate(zip(boxes, levels, strict=True)):
         if k == 0:
-            out[i] = bacf_patch(image, pos, (h, w), out_hw)
+            out[i] = bacf_patch(image, pos, sizes[i], out_hw)
             continue
         scale = 1 << k
-        h, w = max(h, 2), max(w, 2)
         out[i] = resample_area(
             pyramid[k - 1], ((t - top) / scale, (c - left) / scale), (h / scale, w / scale),
             out_hw,
