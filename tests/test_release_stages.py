@@ -20,7 +20,6 @@ from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pytest
 import scipy.fft as sfft
@@ -89,9 +88,10 @@ def per_frame(name: str) -> dict[str, np.ndarray]:
 
 
 @cache
-def rgb_frame(dataset: str, sequence: str, index: int) -> np.ndarray:
+def bgr_frame(dataset: str, sequence: str, index: int) -> np.ndarray:
+    """A frame as the trackers take it (OpenCV's BGR; they cut RGB windows from it)."""
     seq = load_dataset(dataset, sequences=[sequence])[0]
-    return cv2.cvtColor(seq.read_frame(index), cv2.COLOR_BGR2RGB)
+    return seq.read_frame(index)
 
 
 def configured(run: Run) -> ARCFTracker:
@@ -151,7 +151,7 @@ def test_patches(run: Run, frame: int, stage: str) -> None:
     tracker = configured(run)
     t = trace(run, frame)
     at_state(tracker, t, stage)
-    image = rgb_frame(run.dataset, run.sequence, frame - 1)
+    image = bgr_frame(run.dataset, run.sequence, frame - 1)
     pos = tracker._sample_pos()
     if f"{stage}_sample_pos" in t:
         assert pos == tuple(t[f"{stage}_sample_pos"].ravel())
@@ -303,11 +303,11 @@ def test_scale_filter(run: Run) -> None:
     assert sf is not None
     t1, t2 = trace(run, 1), trace(run, 2)
     pf = per_frame(run.trace)
-    xs1 = sf._sample(rgb_frame(run.dataset, run.sequence, 0),
+    xs1 = sf._sample(bgr_frame(run.dataset, run.sequence, 0),
                      tuple(t1["train_pos_in"].ravel()), tracker._base_target_sz,
                      float(t1["train_csf_in"].ravel()[0]))
     assert xs1.shape == t1["train_scale_xs"].shape
-    xs2 = sf._sample(rgb_frame(run.dataset, run.sequence, 1), tuple(pf["pos_translated"][1]),
+    xs2 = sf._sample(bgr_frame(run.dataset, run.sequence, 1), tuple(pf["pos_translated"][1]),
                      tracker._base_target_sz, float(t2["det_csf_in"].ravel()[0]))
     for ours, ref in ((xs1, t1["train_scale_xs"]), (xs2, t2["det_scale_xs"])):
         # The scale samples are fHOG of tiny patches (32x15 px on boat1, 8x3 cells): a single

@@ -404,11 +404,18 @@ def test_colour_frames_are_converted_from_bgr_to_rgb() -> None:
     (fHOG's channel ties go to R, the Color Names index is R + 32 G + 1024 B)."""
     frames, gt = scene(n=3)
     t = make("arcf-h")
-    image, color = t._frame_for_init(frames[0])
+    _, color = t._frame_for_init(frames[0])
     assert color
-    np.testing.assert_array_equal(image, frames[0][..., ::-1])
     t.init(frames[0], gt[0])
-    np.testing.assert_array_equal(t._frame_for_update(frames[1]), frames[1][..., ::-1])
+    # the windows the features see are those of the frame converted to RGB, pixel for pixel
+    from arcf.features.patches import matlab_round, pyramid_windows
+
+    pos, factors = t._sample_pos(), t._scale_factors
+    sides = [matlab_round(t._sample_sz * t._csf * f) for f in factors]
+    rgb = np.ascontiguousarray(frames[1][..., ::-1])
+    direct = pyramid_windows(rgb, pos, [(s, s) for s in sides], (t._sample_sz, t._sample_sz))
+    np.testing.assert_array_equal(t._patches(frames[1], pos, factors), direct)
+    assert not np.array_equal(direct, direct[..., ::-1])  # the test scene is not grey
     # a gray stream converts later colour frames with the BGR weights
     g = make("arcf-h")
     g.init(gray(frames)[0], gt[0])

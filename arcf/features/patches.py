@@ -19,6 +19,19 @@ def matlab_round(v: float) -> int:
     return math.floor(v + 0.5) if v >= 0 else -math.floor(-v + 0.5)
 
 
+def as_rgb(patches: np.ndarray) -> np.ndarray:
+    """``(..., H, W, C)`` uint8 windows cut from a BGR frame, in the release's RGB order.
+
+    The trackers keep frames in OpenCV's BGR and convert only the windows they cut: the same
+    pixels as converting the frame first, since every sampler treats channels alike, for a few
+    hundred kilobytes instead of the whole frame. Grey (C = 1) passes through.
+    """
+    if patches.shape[-1] != 3:
+        return patches
+    flat = np.ascontiguousarray(patches).reshape(-1, patches.shape[-2], 3)
+    return cv2.cvtColor(flat, cv2.COLOR_BGR2RGB).reshape(patches.shape)
+
+
 def resize_auto(patch: np.ndarray, out_hw: tuple[int, int]) -> np.ndarray:
     """The release's ``mexResize(patch, out_hw, 'auto')``: bilinear or area interpolation.
 
