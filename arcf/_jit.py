@@ -13,7 +13,7 @@ from numba.extending import intrinsic
 
 log = logging.getLogger("arcf")
 
-_OPTIONS: dict[str, Any] = {"nogil": True, "boundscheck": False}
+_OPTIONS: dict[str, Any] = {"nogil": True, "boundscheck": False, "error_model": "numpy"}
 
 
 def kernel(fn: Callable[..., Any]) -> Any:

@@ -64,6 +64,10 @@ Arithmetic = ArithmeticMode | SSETables
 #: Weight of the 4 texture (gradient-energy) channels, as in the toolbox (~ 1 / sqrt(18)).
 _TEXTURE_WEIGHT = np.float32(0.2357)
 
+#: The modelled release arithmetic runs as one fused kernel (``_release_histogram``); the
+#: separate steps remain for the replayed SSE tables and for tests that swap the instructions.
+_FUSED_RELEASE = True
+
 #: Working-set budget per chunk of a batch (bytes), sized for a 2-4 MB L2 cache; see
 #: ``_chunk_size``.
 _CHUNK_BYTES = 3 << 20
@@ -184,11 +188,15 @@ def fhog(
     for i in range(0, n_img, step):
         chunk = x[i : i + step]
         n_chunk = chunk.shape[0]
-        gx, gy, mag2 = _dominant_gradient(chunk, hb * cell_size, wb * cell_size)
         # R1 and (filled later) R2, orientation-major: (3n, N * hb * wb).
         r = _scratch("r", (3 * n_orients, n_chunk * hb * wb), np.float32)
         r1 = r[: 2 * n_orients].reshape(2 * n_orients, n_chunk, hb, wb)
-        _histogram(gx, gy, mag2, cell_size, n_orients, out=r1, release=release, tables=tables)
+        if arithmetic == "release" and cell_size > 1 and _FUSED_RELEASE:
+            _release_histogram(chunk, cell_size, n_orients, out=r1)
+        else:
+            gx, gy, mag2 = _dominant_gradient(chunk, hb * cell_size, wb * cell_size)
+            _histogram(gx, gy, mag2, cell_size, n_orients, out=r1, release=release,
+                       tables=tables)
         dst = out[i : i + n_chunk].reshape(n_chunk * hb * wb, n_out)
         _normalise(r, n_chunk, hb, wb, cell_size, n_orients, clip, out=dst)
     return out.reshape(*lead, hb, wb, n_out)
@@ -278,56 +286,65 @@ def _gradient_kernel(x, gx, gy, m2):  # pragma: no cover - compiled
     so the first channel wins ties, as in the toolbox. ``x`` is ``(N, H, W, C)``; the outputs
     ``(N, h0, w0)`` are the top-left crop (the gradient itself uses the whole image).
     """
-    n_img, height, width, channels = x.shape
+    n_img, _, width, channels = x.shape
     h0, w0 = gx.shape[1], gx.shape[2]
-    two = np.float32(2.0)
-    # float32 copies of the rows above / at / below, one channel after the other
-    up = np.empty((channels, width), np.float32)
-    mid = np.empty((channels, width), np.float32)
-    down = np.empty((channels, width), np.float32)
-    dx = np.empty(w0, np.float32)
-    dy = np.empty(w0, np.float32)
-    mag = np.empty(w0, np.float32)
+    rows = np.empty((3, channels, width), np.float32)
+    work = np.empty((3, w0), np.float32)
     for i in range(n_img):
         for r in range(h0):
-            # the rows the vertical difference reads: (down - up), doubled at the borders
-            r_up, r_down = max(r - 1, 0), min(r + 1, height - 1)
-            for c in range(channels):
-                for col in range(width):
-                    up[c, col] = np.float32(x[i, r_up, col, c])
-                    mid[c, col] = np.float32(x[i, r, col, c])
-                    down[c, col] = np.float32(x[i, r_down, col, c])
-            border_row = height > 1 and (r == 0 or r == height - 1)
-            for c in range(channels):
-                u, m, d = up[c], mid[c], down[c]
-                for col in range(w0):
-                    dy[col] = d[col] - u[col]
-                if height == 1:
-                    dy[:] = 0.0
-                elif border_row:
-                    for col in range(w0):
-                        dy[col] = dy[col] * two
-                if width == 1:
-                    dx[:] = 0.0
-                else:
-                    for col in range(1, min(w0, width - 1)):
-                        dx[col] = m[col + 1] - m[col - 1]
-                    dx[0] = (m[1] - m[0]) * two
-                    if w0 == width:
-                        dx[width - 1] = (m[width - 1] - m[width - 2]) * two
-                for col in range(w0):
-                    mag[col] = fma32(dy[col], dy[col], dx[col] * dx[col])
-                if c == 0:
-                    for col in range(w0):
-                        gx[i, r, col] = dx[col]
-                        gy[i, r, col] = dy[col]
-                        m2[i, r, col] = mag[col]
-                else:
-                    for col in range(w0):
-                        if mag[col] > m2[i, r, col]:
-                            gx[i, r, col] = dx[col]
-                            gy[i, r, col] = dy[col]
-                            m2[i, r, col] = mag[col]
+            _gradient_row(x, i, r, rows, work, gx[i, r], gy[i, r], m2[i, r])
+
+
+@kernel
+def _gradient_row(x, i, r, rows, work, gx, gy, m2):  # pragma: no cover - compiled
+    """Row ``r`` of image ``i`` of ``_gradient_kernel`` into ``gx``, ``gy``, ``m2`` (w0 each).
+
+    ``rows`` (3, C, W) and ``work`` (3, w0) float32 are scratch.
+    """
+    _, height, width, channels = x.shape
+    w0 = gx.shape[0]
+    two = np.float32(2.0)
+    # float32 copies of the rows above / at / below, one channel after the other
+    up, mid, down = rows[0], rows[1], rows[2]
+    dx, dy, mag = work[0], work[1], work[2]
+    # the rows the vertical difference reads: (down - up), doubled at the borders
+    r_up, r_down = max(r - 1, 0), min(r + 1, height - 1)
+    for c in range(channels):
+        for col in range(width):
+            up[c, col] = np.float32(x[i, r_up, col, c])
+            mid[c, col] = np.float32(x[i, r, col, c])
+            down[c, col] = np.float32(x[i, r_down, col, c])
+    border_row = height > 1 and (r == 0 or r == height - 1)
+    for c in range(channels):
+        u, m, d = up[c], mid[c], down[c]
+        for col in range(w0):
+            dy[col] = d[col] - u[col]
+        if height == 1:
+            dy[:] = 0.0
+        elif border_row:
+            for col in range(w0):
+                dy[col] = dy[col] * two
+        if width == 1:
+            dx[:] = 0.0
+        else:
+            for col in range(1, min(w0, width - 1)):
+                dx[col] = m[col + 1] - m[col - 1]
+            dx[0] = (m[1] - m[0]) * two
+            if w0 == width:
+                dx[width - 1] = (m[width - 1] - m[width - 2]) * two
+        for col in range(w0):
+            mag[col] = fma32(dy[col], dy[col], dx[col] * dx[col])
+        if c == 0:
+            for col in range(w0):
+                gx[col] = dx[col]
+                gy[col] = dy[col]
+                m2[col] = mag[col]
+        else:
+            for col in range(w0):
+                if mag[col] > m2[col]:
+                    gx[col] = dx[col]
+                    gy[col] = dy[col]
+                    m2[col] = mag[col]
 
 
 # --------------------------------------------------------------------------------------------
@@ -537,16 +554,16 @@ def _release_keys(gx, gy, half_m, offsets, start):  # pragma: no cover - compile
     cap = np.float32(_HALF_RSQRT_CAP)
     mult = np.float32(_ACOS_MULT)
     lo, hi = np.float32(-_ACOS_OFFSET), np.float32(_ACOS_OFFSET - 1)
+    # Written without branches (the sign flip is a product with +-1, exact): with real
+    # gradients their outcomes are random, and mispredictions doubled the fused kernel's time.
     for p in range(gx.size):
         hm = min(half_m[p], cap)
         half_m[p] = hm
         t = (gx[p] * hm) * mult
-        if math.copysign(1.0, gy[p]) < 0:
-            t = -t
+        t = t * np.float32(math.copysign(1.0, gy[p]))
         t = max(min(t, hi), lo)
         key = (int(t) if t == t else 0) + _ACOS_OFFSET
-        if gy[p] < 0:
-            key += _ACOS_LEN
+        key += _ACOS_LEN if gy[p] < 0 else 0
         start[p] = offsets[key]
 
 
@@ -691,8 +708,14 @@ def _histogram(
         index, w_top, w_bottom = _voting_layout(n_img, hb, wb, cell)
         acc = _scratch("acc", (2, size + wb + 2), np.float32)
         _vote(start, index, mag.reshape(-1), w_top, w_bottom, wb, acc, out)
-    # Border cells only collect 7/8 of an interior cell's weight: rescale them, sequentially
-    # like the toolbox, so a single row / column gets the factor twice.
+    _rescale_border(out)
+
+
+def _rescale_border(out: np.ndarray) -> None:
+    """Border cells of ``(2n, N, hb, wb)`` histograms only collect 7/8 of an interior cell's
+    weight: rescale them, sequentially like the toolbox, so a single row / column gets the
+    factor twice."""
+    hb, wb = out.shape[2:]
     s = np.float32(8.0 / 7.0)
     if hb > 1:
         out[:, :, :: hb - 1] *= s  # first and last row
@@ -730,15 +753,111 @@ def _vote(start, index, mag, w_top, w_bottom, wb, acc, out):  # pragma: no cover
                 m = mag[p]
                 left[k] += m * w.real
                 right[k] += m * w.imag
+    _combine_votes(left, right, wb, out)
+
+
+@kernel
+def _combine_votes(left, right, wb, out):  # pragma: no cover - compiled
+    """Cell (i, j) = left votes at padded (i + 1, j + 1) + right votes at padded (i + 1, j)."""
     n_bins, n_img, hb, _ = out.shape
     plane = n_img * (hb + 1) * (wb + 1)
-    # Cell (i, j) = left votes at padded (i + 1, j + 1) + right votes at padded (i + 1, j).
     for o in range(n_bins):
         for i in range(n_img):
             for y in range(hb):
                 base = o * plane + (i * (hb + 1) + y + 1) * (wb + 1)
                 for x in range(wb):
                     out[o, i, y, x] = left[base + x + 1] + right[base + x]
+
+
+def _release_histogram(x: np.ndarray, cell: int, n_orients: int, out: np.ndarray) -> None:
+    """``_dominant_gradient`` + ``_histogram(release=True)`` with the modelled SSE arithmetic,
+    fused into one pass over the pixels (``_release_votes``): the same bits, without the
+    seven full-size intermediates that the separate steps write and read back.
+    """
+    n_img, hb, wb = out.shape[1:]
+    w0 = wb * cell
+    plane = n_img * (hb + 1) * (wb + 1)
+    size = 2 * n_orients * plane
+    if size + wb + 2 >= 2**31:
+        raise ValueError("fhog: batch too large for int32 histogram indices; split it")
+    index, w_top, w_bottom = _voting_layout(n_img, hb, wb, cell)
+    acc = _scratch("acc", (2, size + wb + 2), np.float32)
+    _release_votes(np.ascontiguousarray(x), _band_order(hb, cell), index, w_top, w_bottom,
+                   _release_plane_offsets(n_orients, plane), wb, w0, acc, out)
+    _rescale_border(out)
+
+
+@lru_cache(maxsize=64)
+def _band_order(hb: int, cell: int) -> np.ndarray:
+    """Pixel rows ordered by the first cell row they vote into, last band first, rows of a band
+    in increasing order.
+
+    Why: ``_vote`` adds every pixel's upper votes before any lower vote. A cell row receives its
+    upper votes from one band of pixel rows and its lower votes from the band above, so running
+    the bands bottom-up, each pixel voting up and down at once, gives every cell its votes in
+    the same order, hence the same float32 sums.
+    """
+    pos = (np.arange(cell) + 0.5) / cell - 0.5
+    first = (np.arange(hb).repeat(cell) + np.tile(np.floor(pos), hb)).astype(np.int64)
+    order = np.lexsort((np.arange(hb * cell), -first)).astype(np.int64)
+    order.setflags(write=False)
+    return order
+
+
+@kernel
+def _release_votes(
+    x, rows, index, w_top, w_bottom, offsets, wb, w0, acc, out
+):  # pragma: no cover - compiled
+    """Per pixel row (in ``_band_order``): the dominant gradient (``_gradient_row``), the
+    modelled ``rsqrt`` (``_release_rsqrt``: float64 ``1 / sqrt``, rounded to 13 bits, capped),
+    ``2 M = rcp(_m / 2)`` (``_release_rcp``), the release's orientation key
+    (``_release_keys``, which re-applies the cap: a no-op) and both bilinear votes (``_vote``),
+    each with the same float32 operations as the separate step it replaces.
+    """
+    n_img, _, width, channels = x.shape
+    h0 = rows.shape[0]
+    hw = h0 * w0
+    grad_rows = np.empty((3, channels, width), np.float32)
+    work = np.empty((3, w0), np.float32)
+    gx = np.empty(w0, np.float32)
+    gy = np.empty(w0, np.float32)
+    m2 = np.empty(w0, np.float32)
+    inv = np.empty(w0, np.float64)
+    bits = inv.view(np.int64)
+    half_m = np.empty(w0, np.float32)
+    mag = np.empty(w0, np.float32)
+    start = np.empty(w0, np.int32)
+    left, right = acc[0], acc[1]
+    left[:] = 0.0
+    right[:] = 0.0
+    cap = np.float32(_HALF_RSQRT_CAP)
+    second = wb + 1
+    # One simple loop per step, which LLVM vectorises (measured: one loop doing all the steps
+    # per pixel ran at half the speed).
+    for i in range(n_img):
+        for y in rows:
+            _gradient_row(x, i, y, grad_rows, work, gx, gy, m2)
+            for col in range(w0):
+                inv[col] = 1.0 / math.sqrt(np.float64(m2[col]))  # 0 -> inf, as the model
+            for col in range(w0):
+                bits[col] = (bits[col] + _RSQRT_HALF_UNIT) & _RSQRT_MASK
+            for col in range(w0):
+                half_m[col] = min(np.float32(inv[col]), cap)
+            for col in range(w0):
+                mag[col] = np.float32(1.0) / half_m[col]
+            _release_keys(gx, gy, half_m, offsets, start)
+            q0 = y * w0
+            p0 = i * hw + q0
+            for col in range(w0):
+                k = start[col] + index[p0 + col]
+                m = mag[col]
+                w = w_top[q0 + col]
+                left[k] += m * w.real
+                right[k] += m * w.imag
+                w = w_bottom[q0 + col]
+                left[k + second] += m * w.real
+                right[k + second] += m * w.imag
+    _combine_votes(left, right, wb, out)
 
 
 # --------------------------------------------------------------------------------------------
