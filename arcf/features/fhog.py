@@ -286,37 +286,47 @@ def _gradient_kernel(x, gx, gy, m2):  # pragma: no cover - compiled
     so the first channel wins ties, as in the toolbox. ``x`` is ``(N, H, W, C)``; the outputs
     ``(N, h0, w0)`` are the top-left crop (the gradient itself uses the whole image).
     """
-    n_img, _, width, channels = x.shape
-    h0, w0 = gx.shape[1], gx.shape[2]
-    rows = np.empty((3, channels, width), np.float32)
-    work = np.empty((3, w0), np.float32)
+    n_img, height, width, channels = x.shape
+    h0 = gx.shape[1]
+    planes = np.empty((channels, height, width), np.float32)
+    work = np.empty((3, gx.shape[2]), np.float32)
     for i in range(n_img):
+        _float_planes(x, i, planes)
         for r in range(h0):
-            _gradient_row(x, i, r, rows, work, gx[i, r], gy[i, r], m2[i, r])
+            _gradient_row(planes, r, work, gx[i, r], gy[i, r], m2[i, r])
 
 
 @kernel
-def _gradient_row(x, i, r, rows, work, gx, gy, m2):  # pragma: no cover - compiled
-    """Row ``r`` of image ``i`` of ``_gradient_kernel`` into ``gx``, ``gy``, ``m2`` (w0 each).
-
-    ``rows`` (3, C, W) and ``work`` (3, w0) float32 are scratch.
-    """
+def _float_planes(x, i, planes):  # pragma: no cover - compiled
+    """Image ``i`` of ``x`` (N, H, W, C) uint8 as float32 channel planes ``(C, H, W)``, so that
+    the gradient reads contiguous rows, each pixel converted once."""
     _, height, width, channels = x.shape
+    flat = x[i].reshape(height * width * channels)
+    out = planes.reshape(channels, height * width)
+    if channels == 3:  # written out, the de-interleaving vectorises (8x faster, measured)
+        for p in range(height * width):
+            out[0, p] = np.float32(flat[3 * p])
+            out[1, p] = np.float32(flat[3 * p + 1])
+            out[2, p] = np.float32(flat[3 * p + 2])
+    else:
+        for c in range(channels):
+            for p in range(height * width):
+                out[c, p] = np.float32(flat[channels * p + c])
+
+
+@kernel
+def _gradient_row(planes, r, work, gx, gy, m2):  # pragma: no cover - compiled
+    """Row ``r`` of ``_gradient_kernel`` from float32 planes ``(C, H, W)`` into ``gx``, ``gy``,
+    ``m2`` (w0 each); ``work`` (3, w0) float32 is scratch."""
+    channels, height, width = planes.shape
     w0 = gx.shape[0]
     two = np.float32(2.0)
-    # float32 copies of the rows above / at / below, one channel after the other
-    up, mid, down = rows[0], rows[1], rows[2]
     dx, dy, mag = work[0], work[1], work[2]
     # the rows the vertical difference reads: (down - up), doubled at the borders
     r_up, r_down = max(r - 1, 0), min(r + 1, height - 1)
-    for c in range(channels):
-        for col in range(width):
-            up[c, col] = np.float32(x[i, r_up, col, c])
-            mid[c, col] = np.float32(x[i, r, col, c])
-            down[c, col] = np.float32(x[i, r_down, col, c])
     border_row = height > 1 and (r == 0 or r == height - 1)
     for c in range(channels):
-        u, m, d = up[c], mid[c], down[c]
+        u, m, d = planes[c, r_up], planes[c, r], planes[c, r_down]
         for col in range(w0):
             dy[col] = d[col] - u[col]
         if height == 1:
@@ -814,10 +824,10 @@ def _release_votes(
     (``_release_keys``, which re-applies the cap: a no-op) and both bilinear votes (``_vote``),
     each with the same float32 operations as the separate step it replaces.
     """
-    n_img, _, width, channels = x.shape
+    n_img, height, width, channels = x.shape
     h0 = rows.shape[0]
     hw = h0 * w0
-    grad_rows = np.empty((3, channels, width), np.float32)
+    planes = np.empty((channels, height, width), np.float32)
     work = np.empty((3, w0), np.float32)
     gx = np.empty(w0, np.float32)
     gy = np.empty(w0, np.float32)
@@ -835,8 +845,9 @@ def _release_votes(
     # One simple loop per step, which LLVM vectorises (measured: one loop doing all the steps
     # per pixel ran at half the speed).
     for i in range(n_img):
+        _float_planes(x, i, planes)
         for y in rows:
-            _gradient_row(x, i, y, grad_rows, work, gx, gy, m2)
+            _gradient_row(planes, y, work, gx, gy, m2)
             for col in range(w0):
                 inv[col] = 1.0 / math.sqrt(np.float64(m2[col]))  # 0 -> inf, as the model
             for col in range(w0):
