@@ -52,11 +52,16 @@ class Crop:
         r0, c0 = gh // 2 - sh // 2, gw // 2 - sw // 2
         return slice(r0, r0 + sh), slice(c0, c0 + sw)
 
-    def apply(self, h: np.ndarray) -> np.ndarray:
-        """Zero the filter outside the window (``B^T B h``), on (..., H, W) maps."""
+    def apply(self, h: np.ndarray, scale: float | None = None) -> np.ndarray:
+        """Zero the filter outside the window (``B^T B h``), on (..., H, W) maps; ``scale``
+        multiplies what is kept (as ``h *= scale`` would, bit for bit, without touching the
+        part that is thrown away)."""
         out = np.zeros_like(h)
         rs, cs = self.slices
-        out[..., rs, cs] = h[..., rs, cs]
+        if scale is None:
+            out[..., rs, cs] = h[..., rs, cs]
+        else:
+            np.multiply(h[..., rs, cs], scale, out=out[..., rs, cs])
         return out
 
 
@@ -100,20 +105,22 @@ def solve_filter(
     # The compiled g-step (NumPy's arithmetic, bit for bit) takes the usual complex64 arrays.
     fused = x.dtype == x_y.dtype == sxx_y.dtype == np.complex64 and all(
         a.flags.c_contiguous for a in (x, x_y, sxx_y, s_xx))
-    g_f = np.zeros_like(x)
+    g_f = np.empty_like(x) if fused else np.zeros_like(x)  # the g-step writes all of it
     h_f = np.zeros_like(x)
     l_f = np.zeros_like(x)
+    weighted = np.empty_like(x) if fused else None
     mu = mu_init
     scale = 1.0 + gamma
-    for _ in range(iterations):
+    for i in range(iterations):
         if fused:
-            # The same float32 operations as the NumPy lines below, in one pass (_g_step).
+            # The same float32 operations as the NumPy lines below, in one pass (_g_step),
+            # which also writes μĝ + ζ̂ for the h-step.
             _g_step(
                 x, x_y, sxx_y, s_xx, l_f, h_f, np.float32(t * mu / scale),
                 np.float32(1) / np.float32(t * mu), np.float32(1) / np.float32(mu),
-                np.float32(1.0 / (t * mu)), np.float32(1.0 / mu), g_f,
+                np.float32(1.0 / (t * mu)), np.float32(1.0 / mu), np.float32(mu), g_f, weighted,
             )
-            h = inv(_weighted_sum(np.float32(mu), g_f, l_f))
+            h = inv(weighted)
         else:
             # g-step: closed form per frequency (Sherman–Morrison)
             b = s_xx + t * mu / scale
@@ -126,20 +133,20 @@ def solve_filter(
             g_f -= x * coef
             h = inv(mu * g_f + l_f)
         # h-step: closed form in the spatial domain, then BACF's crop
-        h *= t / (mu * t + admm_lambda)
-        h_f = fwd(crop.apply(h)).astype(x.dtype, copy=False)
-        # Lagrange multiplier and penalty
-        if fused:
-            _add_scaled_difference(l_f, np.float32(mu), g_f, h_f)
-        else:
-            l_f += mu * (g_f - h_f)
+        h_f = fwd(crop.apply(h, t / (mu * t + admm_lambda))).astype(x.dtype, copy=False)
+        # Lagrange multiplier and penalty (the last iteration's would never be read)
+        if i + 1 < iterations:
+            if fused:
+                _add_scaled_difference(l_f, np.float32(mu), g_f, h_f)
+            else:
+                l_f += mu * (g_f - h_f)
         mu = min(mu_scale_step * mu, mu_max)
     return g_f.astype(x.dtype, copy=False), h_f
 
 
 @kernel
 def _g_step(
-    x, x_y, sxx_y, s_xx, l_f, h_f, b_shift, inv_tmu, inv_mu, c_tmu, c_mu, g_f
+    x, x_y, sxx_y, s_xx, l_f, h_f, b_shift, inv_tmu, inv_mu, c_tmu, c_mu, mu, g_f, weighted
 ):  # pragma: no cover - compiled
     """The g-step of one ADMM iteration, per frequency, as ``solve_filter``'s NumPy lines.
 
@@ -148,12 +155,14 @@ def _g_step(
     and rounding: ``einsum``'s plain complex products summed over channels in order, division
     by a real as multiplication by its float32 reciprocal, complex products with one FMA per
     part (``fma32``). Arrays are complex64 ``(D, H, W')``, ``(H, W')`` for the sums; loops run
-    over the channel outside and the frequencies inside, which vectorises.
+    over the channel outside and the frequencies inside, which vectorises. Also writes
+    ``weighted = μĝ + ζ̂`` (float32, as NumPy rounds it), the h-step's input.
     """
     n_d = x.shape[0]
     n_k = x.shape[1] * x.shape[2]
     xs, xys = x.reshape(n_d, n_k), x_y.reshape(n_d, n_k)
     ls, hs, gs = l_f.reshape(n_d, n_k), h_f.reshape(n_d, n_k), g_f.reshape(n_d, n_k)
+    ws = weighted.reshape(n_d, n_k)
     sxy = sxx_y.reshape(n_k)
     sxx = s_xx.reshape(n_k)
     lr = np.zeros(n_k, np.float32)
@@ -187,17 +196,7 @@ def _g_step(
             gr = gr - fma32(ar, cr[k], -(ai * ci[k]))
             gi = gi - fma32(ar, ci[k], ai * cr[k])
             gs[d, k] = complex(gr, gi)
-
-
-@kernel
-def _weighted_sum(mu, g_f, l_f):  # pragma: no cover - compiled
-    """``μ ĝ + ζ̂`` (complex64), as NumPy rounds it."""
-    out = np.empty_like(g_f)
-    flat_g, flat_l, flat_o = g_f.reshape(-1), l_f.reshape(-1), out.reshape(-1)
-    for k in range(flat_g.size):
-        flat_o[k] = complex(mu * flat_g[k].real + flat_l[k].real,
-                            mu * flat_g[k].imag + flat_l[k].imag)
-    return out
+            ws[d, k] = complex(mu * gr + ls[d, k].real, mu * gi + ls[d, k].imag)
 
 
 @kernel
