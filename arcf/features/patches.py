@@ -11,7 +11,7 @@ import math
 import cv2
 import numpy as np
 
-from .resize import resample_area, resize_area, resize_area_windows
+from .resize import resample_area_windows, resize_area, resize_area_windows
 
 
 def matlab_round(v: float) -> int:
@@ -177,13 +177,18 @@ def pyramid_windows(
             if level.ndim < image.ndim:
                 level = level[..., None]
             pyramid.append(level)
-    for i, ((t, c, h, w), k) in enumerate(zip(boxes, levels, strict=True)):
-        if k == 0:
-            out[i] = bacf_patch(image, pos, sizes[i], out_hw)
+    exact = [i for i, k in enumerate(levels) if k == 0]
+    if exact:  # cut as the release does, sharing one crop and one transposition
+        out[exact] = release_windows(image, pos, [sizes[i] for i in exact], out_hw)
+    for k in range(1, deepest + 1):
+        at_k = [i for i, level in enumerate(levels) if level == k]
+        if not at_k:
             continue
         scale = 1 << k
-        out[i] = resample_area(
-            pyramid[k - 1], ((t - top) / scale, (c - left) / scale), (h / scale, w / scale),
+        out[at_k] = resample_area_windows(
+            pyramid[k - 1],
+            [(((boxes[i][0] - top) / scale, (boxes[i][1] - left) / scale),
+              (boxes[i][2] / scale, boxes[i][3] / scale)) for i in at_k],
             out_hw,
         )
     return out

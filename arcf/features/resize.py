@@ -33,7 +33,7 @@ import numpy as np
 
 from .._jit import kernel
 
-__all__ = ["resample_area", "resize_area", "resize_area_windows"]
+__all__ = ["resample_area", "resample_area_windows", "resize_area", "resize_area_windows"]
 
 _DBL_EPSILON = 2.220446049250313e-16
 
@@ -154,13 +154,23 @@ def resample_area(
     its borders fall between pixels; box weights there keep the result an area average of the
     window, which bilinear interpolation at a shrink of up to 2 is not (it skips pixels).
     """
+    return resample_area_windows(image, [(origin, extent)], out_hw)[0]
+
+
+def resample_area_windows(
+    image: np.ndarray, windows: list[tuple[tuple[float, float], tuple[float, float]]],
+    out_hw: tuple[int, int],
+) -> np.ndarray:
+    """``resample_area`` of several ``(origin, extent)`` windows of one image, ``(N, oh, ow,
+    C)``, with the image transposed once for all of them (as ``resize_area_windows``)."""
     h, w, cn = image.shape
     oh, ow = out_hw
-    ystart, yindex, yalpha = _box_table(origin[0], extent[0], h, oh)
-    xstart, xindex, xalpha = _box_table(origin[1], extent[1], w, ow)
-    columns = cv2.transpose(image.reshape(h, w * cn))
-    out = np.empty((oh, ow, cn), np.uint8)
-    _resize_area_u8(columns, cn, ystart, yindex, yalpha, xstart, xindex, xalpha, out)
+    columns = cv2.transpose(np.ascontiguousarray(image).reshape(h, w * cn))
+    out = np.empty((len(windows), oh, ow, cn), np.uint8)
+    for i, (origin, extent) in enumerate(windows):
+        ystart, yindex, yalpha = _box_table(origin[0], extent[0], h, oh)
+        xstart, xindex, xalpha = _box_table(origin[1], extent[1], w, ow)
+        _resize_area_u8(columns, cn, ystart, yindex, yalpha, xstart, xindex, xalpha, out[i])
     return out
 
 
