@@ -261,7 +261,7 @@ class ARCFTracker:
         p = self.params
         sample_pos = self._sample_pos()
         patches = self._patches(image, sample_pos, self._scale_factors)
-        xtf = self._fwd(self._extractor(patches, self._color) * self._window)  # (S, D, H, W')
+        xtf = self._fwd(self._extractor(patches, self._color, self._window))  # (S, D, H, W')
         rf = correlate(self._g_f, xtf)  # (S, H, W')
         if rf.shape[0] == 1:
             response = spatial_response(rf[0], self._use_sz, self._hermitian)[None]
@@ -301,7 +301,7 @@ class ARCFTracker:
     def _training_sample(self, image: np.ndarray) -> np.ndarray:
         """Step 3a: windowed features at the new position and scale, in the Fourier domain."""
         patch = self._patches(image, self._sample_pos(), (1.0,))
-        return self._fwd(self._extractor(patch, self._color)[0] * self._window)
+        return self._fwd(self._extractor(patch, self._color, self._window)[0])
 
     def _solve(self, target_f: np.ndarray | None) -> np.ndarray:
         """Step 3b: the filter ĝ from the running model by ADMM."""

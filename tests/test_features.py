@@ -283,6 +283,10 @@ def test_extractor_block_order(index_table: Path) -> None:
     np.testing.assert_array_equal(out_exact[:, 1:32], fhog(patches, 4).transpose(0, 3, 1, 2))
     np.testing.assert_array_equal(out_exact[:, [0, *range(32, 42)]], out[:, [0, *range(32, 42)]])
     assert not np.array_equal(out_exact[:, 1:32], release)
+    # the cosine window applied in place: the same product as multiplying afterwards
+    window = np.outer(np.hanning(10), np.hanning(9)).astype(np.float32)
+    windowed = FeatureExtractor(("gray", "fhog", "cn"), 4, str(index_table))(patches, True, window)
+    np.testing.assert_array_equal(windowed, out * window)
     # gray frames skip the Color Names block
     g = np.stack([cv2.cvtColor(p, cv2.COLOR_RGB2GRAY) for p in patches])[..., None]
     out_g = FeatureExtractor(("gray", "fhog", "cn"), 4, "/nonexistent.npy")(g, False)

@@ -658,3 +658,21 @@ def test_traced_release_features_need_rgb_order() -> None:
     name, patch, feat = pairs[0]
     bgr = np.abs(fhog(patch[..., ::-1], arithmetic="release") - feat)
     assert (bgr > 1e-3).mean() > 0.1, name
+
+
+def test_out_argument_takes_any_layout() -> None:
+    """``out=`` receives the same values whatever its strides: a transposed view of a
+    channel-first buffer (the trackers' layout), or a batch whose leading axes cannot be
+    merged without a copy; a wrong shape or dtype is refused."""
+    images = (RNG.random((2, 3, 24, 20, 3)) * 255).astype(np.uint8)
+    expected = fhog(images, 4, arithmetic="release")
+    planar = np.zeros((6, 31, 6, 5), np.float32)
+    got = fhog(images.reshape(6, 24, 20, 3), 4, arithmetic="release",
+               out=planar.transpose(0, 2, 3, 1))
+    np.testing.assert_array_equal(got, expected.reshape(6, 6, 5, 31))
+    np.testing.assert_array_equal(planar.transpose(0, 2, 3, 1), expected.reshape(6, 6, 5, 31))
+    odd = np.zeros((3, 2, 6, 5, 31), np.float32).transpose(1, 0, 2, 3, 4)  # (2, 3, ...) strided
+    assert fhog(images, 4, arithmetic="release", out=odd) is odd
+    np.testing.assert_array_equal(odd, expected)
+    with pytest.raises(ValueError, match="out must be float32"):
+        fhog(images, 4, out=np.zeros((2, 3, 6, 5, 31), np.float64))

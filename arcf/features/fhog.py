@@ -84,6 +84,7 @@ def fhog(
     n_orients: int = 9,
     clip: float = 0.2,
     arithmetic: Arithmetic = "exact",
+    out: np.ndarray | None = None,
 ) -> np.ndarray:
     """Felzenszwalb HOG of one image or a batch of same-size images (Dollár toolbox semantics).
 
@@ -131,6 +132,9 @@ def fhog(
             An :class:`~arcf.features.sse.SSETables`: the release arithmetic with a CPU's own
             ``RSQRTPS`` / ``RCPPS`` replayed bit for bit from the tables that
             ``tools/sse_approx_dump.c`` measured on it, instead of the model.
+        out: where to write the result, a float32 array of the result's shape with any strides
+            (e.g. a transposed view of a channel-first buffer, which is how the trackers get
+            their feature maps without a copy); returned.
 
     Returns:
         float32 array ``(..., H // cell_size, W // cell_size, 3 * n_orients + 4)`` (31 channels for
@@ -178,12 +182,23 @@ def fhog(
     height, width, channels = x.shape[-3:]
     hb, wb = height // cell_size, width // cell_size
     n_out = fhog_num_channels(n_orients)
+    shape = (*lead, hb, wb, n_out)
+    if out is None:
+        out = np.empty(shape, np.float32)
+    elif out.shape != shape or out.dtype != np.float32:
+        raise ValueError(f"fhog: out must be float32 {shape}, got {out.dtype} {out.shape}")
     if hb == 0 or wb == 0 or x.size == 0:
-        return np.zeros((*lead, hb, wb, n_out), np.float32)
+        out.fill(0.0)
+        return out
 
     n_img = math.prod(lead)
     x = x.reshape(n_img, height, width, channels)
-    out = np.empty((n_img, hb, wb, n_out), np.float32)
+    result = out
+    out = out.view()
+    try:
+        out.shape = (n_img, hb, wb, n_out)  # in place: raises where only a copy could do
+    except AttributeError:
+        out = np.empty((n_img, hb, wb, n_out), np.float32)
     step = _chunk_size(height, width, hb, wb, n_orients)
     for i in range(0, n_img, step):
         chunk = x[i : i + step]
@@ -197,9 +212,10 @@ def fhog(
             gx, gy, mag2 = _dominant_gradient(chunk, hb * cell_size, wb * cell_size)
             _histogram(gx, gy, mag2, cell_size, n_orients, out=r1, release=release,
                        tables=tables)
-        dst = out[i : i + n_chunk].reshape(n_chunk * hb * wb, n_out)
-        _normalise(r, n_chunk, hb, wb, cell_size, n_orients, clip, out=dst)
-    return out.reshape(*lead, hb, wb, n_out)
+        _normalise(r, n_chunk, hb, wb, cell_size, n_orients, clip, out=out[i : i + n_chunk])
+    if not np.shares_memory(out, result):
+        result[...] = out.reshape(shape)
+    return result
 
 
 def _chunk_size(height: int, width: int, hb: int, wb: int, n_orients: int) -> int:
@@ -888,7 +904,7 @@ def _normalise(
 ) -> None:
     """Toolbox ``hogNormMatrix`` + ``hogChannels``: ``r`` ``(3n, N*hb*wb)`` -> ``out``.
 
-    ``out`` is a contiguous ``(N * hb * wb, 3n + 4)`` float32 array (channels last).
+    ``out`` is a ``(N, hb, wb, 3n + 4)`` float32 array (channels last), any strides.
 
     ``r[:2n]`` holds R1 on entry; ``r[2n:]`` is scratch. The 1/2 of the orientation channels
     is folded into the normalisers and the clip value (exact: a power of two), which saves a
@@ -898,7 +914,7 @@ def _normalise(
     half_clip = np.float32(0.5 * float(np.float32(clip)))
     texture = np.float32(2.0) * _TEXTURE_WEIGHT
     _normalise_cells(r.reshape(3 * n_orients, n_img, hb, wb), n_orients, eps, half_clip,
-                     texture, out.reshape(n_img, hb, wb, -1))
+                     texture, out)
 
 
 @kernel
