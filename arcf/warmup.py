@@ -53,7 +53,32 @@ def warm_up() -> float:
         solve_filter(spectrum[..., : 3 if hermitian else 4], label[:, : 3 if hermitian else 4],
                      None, gamma=0.0, admm_lambda=0.01, iterations=1,
                      crop=Crop((4, 4), (2, 2)), hermitian=hermitian)
+    _track_a_little()
     return time.perf_counter() - t0
+
+
+def _track_a_little() -> None:
+    """Two frames of every preset on a synthetic scene, a pyramid-sized window included.
+
+    Why: Numba compiles (or loads) one specialisation per argument layout, and the trackers
+    pass views the calls above do not (a transposed fHOG output, strided windows); loading
+    those on the first real frame added ~5 ms to it (measured with ``benchmarks/speed.py``).
+    """
+    from .errors import ColorNamesNotFoundError
+    from .presets import PRESETS
+    from .tracker import create_tracker
+
+    yy, xx = np.mgrid[0:480, 0:480]
+    frame = np.stack([(xx * 3 + yy) % 256, (yy * 5) % 256, (xx * yy) % 256], -1).astype(np.uint8)
+    shifted = np.roll(frame, (3, 2), axis=(0, 1))
+    for name in PRESETS:
+        for image, later in ((frame, shifted), (frame[..., 0], shifted[..., 0])):
+            tracker = create_tracker(name)
+            try:
+                tracker.init(image, (140.0, 140.0, 200.0, 200.0))
+            except ColorNamesNotFoundError:
+                continue  # ARCF-HC on colour needs the table; grey frames still warm it up
+            tracker.update(later)
 
 
 def keep_freed_memory() -> bool:
