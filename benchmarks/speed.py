@@ -9,7 +9,8 @@ fresh process, so thread pinning applies before NumPy/SciPy/OpenCV load. CSRT co
 
     python benchmarks/speed.py --setup-csrt     # all local sequences, 1 and default threads
     python benchmarks/speed.py --threads 1 --sequences boat1,Animal3
-    python benchmarks/speed.py --profile arcf-h --sequences boat1   # where the time goes
+    python benchmarks/speed.py --profile arcf-h --sequences boat1   # cProfile, top 20
+    python benchmarks/speed.py --stages          # per-stage table next to each stage's floor
 """
 
 from __future__ import annotations
@@ -32,7 +33,8 @@ PIN = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "
 
 
 # ----------------------------------------------------------------------------- worker side
-def worker(job_file: str, tracker_name: str, threads: str, profile: bool) -> None:
+def worker(job_file: str, tracker_name: str, threads: str, profile: bool,
+           stages: bool = False) -> None:
     """Runs in a fresh process: decode all frames, then time init + update."""
     import cv2
     import numpy as np
@@ -56,6 +58,12 @@ def worker(job_file: str, tracker_name: str, threads: str, profile: bool) -> Non
         import arcf
 
         kernels = arcf.warm_up()
+        timer = None
+        if stages:
+            sys.path.insert(0, str(ROOT / "benchmarks"))
+            import stages as stage_timing
+
+            timer = stage_timing.instrument()
         tracker = arcf.create_tracker(tracker_name)
         first = 0.0
 
@@ -78,9 +86,13 @@ def worker(job_file: str, tracker_name: str, threads: str, profile: bool) -> Non
             stats.sort_stats("tottime").print_stats(20)
         else:
             seconds = run()
-    print(json.dumps({"frames": len(frames), "seconds": seconds, "first_s": first,
-                      "kernels_s": kernels, "fps": len(frames) / seconds,
-                      "pixels": list(np.shape(frames[0]))}))
+    record = {"frames": len(frames), "seconds": seconds, "first_s": first,
+              "kernels_s": kernels, "fps": len(frames) / seconds,
+              "pixels": list(np.shape(frames[0]))}
+    if tracker_name != "csrt" and timer is not None:
+        timer.restore()
+        record["stages"] = stage_timing.report(timer, seconds)
+    print(json.dumps(record))
 
 
 # ----------------------------------------------------------------------------- orchestrator
@@ -108,6 +120,8 @@ def main() -> int:
     ap.add_argument("--worker", nargs=3, metavar=("JOB", "TRACKER", "THREADS"),
                     help=argparse.SUPPRESS)
     ap.add_argument("--profile", metavar="TRACKER", help="cProfile one tracker, print top 20")
+    ap.add_argument("--stages", action="store_true",
+                    help="arcf trackers only, single-threaded: time per stage next to its floor")
     ap.add_argument("--threads", default="1,default", help="'1', 'default' or both")
     ap.add_argument("--sequences", default="", help="comma-separated names (default: all local)")
     ap.add_argument("--trackers", default=",".join(TRACKERS))
@@ -117,7 +131,8 @@ def main() -> int:
     ap.add_argument("--data", type=Path, default=None)
     args = ap.parse_args()
     if args.worker:
-        worker(*args.worker, profile=bool(os.environ.get("ARCF_PROFILE")))
+        worker(*args.worker, profile=bool(os.environ.get("ARCF_PROFILE")),
+               stages=bool(os.environ.get("ARCF_STAGES")))
         return 0
 
     sys.path.insert(0, str(ROOT))
@@ -135,6 +150,8 @@ def main() -> int:
     trackers = [t for t in args.trackers.split(",") if t]
     if args.profile:
         trackers, modes = [args.profile], ["1"]
+    elif args.stages:
+        trackers, modes = [t for t in trackers if t != "csrt"], ["1"]
     else:
         modes = [m for m in args.threads.split(",") if m]
     if "csrt" in trackers:
@@ -145,6 +162,7 @@ def main() -> int:
                      "--csrt-python PATH (a venv with opencv-contrib-python-headless)")
 
     fps: dict[tuple[str, str, str], float] = {}
+    stage_runs: dict[str, list[tuple[int, dict]]] = {t: [] for t in trackers}
     first: dict[str, list[float]] = {t: [] for t in trackers}  # init (first frame) seconds
     kernels: list[float] = []  # arcf's kernel load per fresh process, seconds
     with tempfile.TemporaryDirectory() as tmp:
@@ -162,6 +180,8 @@ def main() -> int:
                             env.pop(k, None)
                     if args.profile:
                         env["ARCF_PROFILE"] = "1"
+                    if args.stages:
+                        env["ARCF_STAGES"] = "1"
                     py = str(args.csrt_python) if t == "csrt" else sys.executable
                     out = subprocess.run(
                         [py, str(Path(__file__).resolve()), "--worker", str(job), t, mode],
@@ -174,12 +194,17 @@ def main() -> int:
                         print(out.stderr)
                     r = json.loads(out.stdout.strip().splitlines()[-1])
                     fps[(seq.name, mode, t)] = r["fps"]
+                    if "stages" in r:
+                        stage_runs[t].append((r["frames"], r["stages"]))
                     first[t].append(r["first_s"])
                     if t != "csrt":
                         kernels.append(r["kernels_s"])
                     print(f"# {seq.name} [{mode}] {t}: {r['fps']:.1f} FPS", file=sys.stderr)
 
     if args.profile:
+        return 0
+    if args.stages:
+        print_stages(stage_runs)
         return 0
     print(f"Machine: {os.cpu_count()} CPUs (`nproc`), {cpu_model()}; Python "
           f"{platform.python_version()}. FPS = frames / (init + update seconds), frames decoded "
@@ -221,6 +246,35 @@ def main() -> int:
                   + " | ".join(f"{agg[t] / agg['csrt']:.2f}x" for t in ratio) + " |")
         print()
     return 0
+
+
+def print_stages(stage_runs: dict[str, list[tuple[int, dict]]]) -> None:
+    """Per-tracker table: ms per frame of each stage over all frames, share, floor."""
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from stages import STAGES
+
+    print(f"Machine: {os.cpu_count()} CPUs (`nproc`), {cpu_model()}; single-threaded; stage "
+          "times are exclusive (a stage called inside another is charged to itself); floors "
+          "as defined in benchmarks/stages.py.\n")
+    for t, runs in stage_runs.items():
+        if not runs:
+            continue
+        frames = sum(n for n, _ in runs)
+        sec = {s: sum(r["seconds"][s] for _, r in runs) for s in STAGES}
+        floors = {s: sum(r["floors"][s] for _, r in runs) for s in runs[0][1]["floors"]}
+        bandwidth = statistics.median(r["bandwidth"] for _, r in runs)
+        total = sum(sec.values())
+        print(f"### {t}: {1e3 * total / frames:.2f} ms per frame over {frames} frames of "
+              f"{len(runs)} sequences (copy bandwidth {bandwidth / 1e9:.1f} GB/s)\n")
+        print("| stage | ms per frame | share | floor, ms per frame | time / floor |")
+        print("| --- | --- | --- | --- | --- |")
+        for s in STAGES:
+            floor = floors.get(s)
+            ms = 1e3 * sec[s] / frames
+            cells = (f"{1e3 * floor / frames:.2f} | {sec[s] / floor:.1f}x"
+                     if floor else "— | —")
+            print(f"| {s} | {ms:.2f} | {100 * sec[s] / total:.0f} % | {cells} |")
+        print()
 
 
 if __name__ == "__main__":
