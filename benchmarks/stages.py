@@ -35,7 +35,7 @@ class StageTimer:
     def __init__(self) -> None:
         self.seconds: Counter[str] = Counter()
         self.bytes: Counter[str] = Counter()
-        self.fft_maps: Counter[tuple[str, tuple[int, ...]]] = Counter()
+        self.fft_maps: Counter[tuple[str, tuple[int, ...], str]] = Counter()
         self.admm_bytes = 0
         self._stack: list[float] = []  # time spent in nested wrapped calls, per open call
         self._patched: list[tuple[Any, str, Any]] = []
@@ -89,15 +89,17 @@ def instrument() -> StageTimer:
     def fft(kind: str) -> Callable[[tuple[Any, ...], dict[str, Any], Any], None]:
         def account(args: tuple[Any, ...], kwargs: dict[str, Any], result: Any) -> None:
             x = np.asarray(args[0])
-            if kind in ("fft", "ifft"):  # 1-D along one axis (the scale filter's)
-                n = x.shape[kwargs.get("axis", -1)]
-                timer.fft_maps[(kind, (n,))] += x.size // n
+            precision = "single" if x.dtype in (np.float32, np.complex64) else "double"
+            if kind in ("fft", "ifft", "rfft", "irfft"):  # 1-D passes along one axis
+                n_in = x.shape[kwargs.get("axis", -1)]
+                n = int(kwargs["n"]) if kind == "irfft" else n_in
+                timer.fft_maps[(kind, (n,), precision)] += x.size // n_in
                 return
             size = kwargs.get("s")
             grid = tuple(x.shape[-2:]) if size is None else tuple(int(v) for v in size)
             if kind == "irfftn" and tuple(kwargs.get("axes", ())) == (-1, -2):
                 grid = grid[::-1]  # s is given in the axes' order, (W, H)
-            timer.fft_maps[(kind, grid)] += x.size // (x.shape[-1] * x.shape[-2])
+            timer.fft_maps[(kind, grid, precision)] += x.size // (x.shape[-1] * x.shape[-2])
         return account
 
     def admm_account(args: tuple[Any, ...], kwargs: dict[str, Any], result: Any) -> None:
@@ -110,7 +112,7 @@ def instrument() -> StageTimer:
     timer.wrap(extract.FeatureExtractor, "__call__", "features",
                lambda a, k, r: features(a[1:], k, r))
     timer.wrap(scale, "fhog", "features", features)
-    for kind in ("fft", "ifft", "fft2", "ifft2", "rfft2", "irfft2", "irfftn"):
+    for kind in ("fft", "ifft", "rfft", "irfft", "fft2", "ifft2", "rfft2", "irfft2", "irfftn"):
         timer.wrap(sfft, kind, "FFT", fft(kind))
     timer.wrap(tracker, "solve_filter", "ADMM", admm_account)
     for name in ("correlate", "spatial_response", "newton_peak", "peak_to_sidelobe"):
@@ -135,12 +137,14 @@ def copy_bandwidth() -> float:
     return src.nbytes / best
 
 
-def fft_floor(maps: Counter[tuple[str, tuple[int, ...]]]) -> float:
-    """Seconds for the recorded transforms done as one batched call per (kind, grid)."""
+def fft_floor(maps: Counter[tuple[str, tuple[int, ...], str]]) -> float:
+    """Seconds for the recorded transforms done as one batched call per (kind, grid, precision):
+    a 2-D grid counts maps, a 1-D one lines (the pruned passes of the h-step, the scale filter's
+    transforms)."""
     total = 0.0
     batch = 64
-    for (kind, grid), count in maps.items():
-        call = _batched_transform(kind, grid, batch)
+    for (kind, grid, precision), count in maps.items():
+        call = _batched_transform(kind, grid, precision == "single", batch)
         call()
         best = float("inf")
         for _ in range(5):
@@ -151,20 +155,29 @@ def fft_floor(maps: Counter[tuple[str, tuple[int, ...]]]) -> float:
     return total
 
 
-def _batched_transform(kind: str, grid: tuple[int, ...], batch: int) -> Callable[[], Any]:
+def _batched_transform(kind: str, grid: tuple[int, ...], single: bool,
+                       batch: int) -> Callable[[], Any]:
     import scipy.fft as sfft
 
+    real_t, complex_t = (np.float32, np.complex64) if single else (np.float64, np.complex128)
     if len(grid) == 1:
-        line = np.ones((batch, grid[0]), np.complex128)
+        (n,) = grid
+        if kind == "rfft":
+            line = np.ones((batch, n), real_t)
+            return lambda: sfft.rfft(line, axis=-1)
+        if kind == "irfft":
+            half = np.ones((batch, n // 2 + 1), complex_t)
+            return lambda: sfft.irfft(half, n=n, axis=-1)
+        lines = np.ones((batch, n), complex_t)
         one_d = sfft.fft if kind == "fft" else sfft.ifft
-        return lambda: one_d(line, axis=-1)
+        return lambda: one_d(lines, axis=-1)
     if kind == "rfft2":
-        real = np.ones((batch, *grid), np.float32)
+        real = np.ones((batch, *grid), real_t)
         return lambda: sfft.rfft2(real)
     if kind in ("irfft2", "irfftn"):
-        half = np.ones((batch, grid[0], grid[1] // 2 + 1), np.complex64)
-        return lambda: sfft.irfft2(half, s=grid)
-    full = np.ones((batch, *grid), np.complex64)
+        half2 = np.ones((batch, grid[0], grid[1] // 2 + 1), complex_t)
+        return lambda: sfft.irfft2(half2, s=grid)
+    full = np.ones((batch, *grid), complex_t)
     two_d = sfft.fft2 if kind == "fft2" else sfft.ifft2
     return lambda: two_d(full)
 
