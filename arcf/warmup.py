@@ -21,10 +21,11 @@ _M_MMAP_THRESHOLD = -3
 def warm_up() -> float:
     """Compile the compiled kernels, or load them from Numba's cache; returns seconds.
 
-    Why: each kernel is compiled on its first call, about 6 s for all of them on a machine
-    that has not cached them yet (0.2 s to load them once cached, in ``__pycache__`` beside
-    the sources, else in ``$NUMBA_CACHE_DIR`` or the user's cache directory). A service calls
-    this when a worker starts, so that the first frame of the first stream does not pay.
+    Why: each kernel is compiled on its first call, about 11 s for all of them on a machine
+    that has not cached them yet (0.35 s once cached, the frames below included; the cache is
+    ``__pycache__`` beside the sources, else ``$NUMBA_CACHE_DIR`` or the user's cache
+    directory). A service calls this when a worker starts, so that the first frame of the
+    first stream does not pay.
 
     It also tells glibc's allocator to keep freed memory (``keep_freed_memory``), which a
     process that tracks should do.

@@ -43,7 +43,7 @@ class ServiceSettings:
     #: Zenoh lease (ms): how fast a hung peer is noticed.
     lease_ms: int = 10000
     #: Seconds start-up waits for every worker to be ready. A worker loads the tracker's
-    #: compiled kernels first, or compiles them where no cache exists (~6 s, longer on a
+    #: compiled kernels first, or compiles them where no cache exists (~11 s, longer on a
     #: loaded machine); past this the service exits with an error instead of serving.
     worker_start_s: float = 120.0
     instance_id: str = field(default_factory=lambda: uuid.uuid4().hex[:8])

@@ -97,7 +97,7 @@ def _warm_up() -> None:
 
     Without it the first session on a worker pays for the imports, FFT plan caches and feature
     buffers (hundreds of ms), and on a machine without Numba's cache for the compiled kernels
-    their compilation (~6 s), which shows up as a latency spike on the first frames.
+    their compilation (~11 s), which shows up as a latency spike on the first frames.
     """
     from arcf import PRESETS
 
