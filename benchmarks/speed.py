@@ -44,6 +44,7 @@ def worker(job_file: str, tracker_name: str, threads: str, profile: bool,
     frames = [cv2.imread(p, cv2.IMREAD_COLOR) for p in job["frames"]]
     x, y, w, h = job["box"]
     kernels = 0.0  # loading (or compiling) arcf's Numba kernels, before any timing
+    timer = None  # per-stage timers (``--stages``), arcf trackers only
     if tracker_name == "csrt":
         tracker = cv2.TrackerCSRT.create()
         box0 = (round(x - 1), round(y - 1), round(w), round(h))  # OpenCV: 0-based integer rect
@@ -58,7 +59,6 @@ def worker(job_file: str, tracker_name: str, threads: str, profile: bool,
         import arcf
 
         kernels = arcf.warm_up()
-        timer = None
         if stages:
             sys.path.insert(0, str(ROOT / "benchmarks"))
             import stages as stage_timing
@@ -89,7 +89,7 @@ def worker(job_file: str, tracker_name: str, threads: str, profile: bool,
     record = {"frames": len(frames), "seconds": seconds, "first_s": first,
               "kernels_s": kernels, "fps": len(frames) / seconds,
               "pixels": list(np.shape(frames[0]))}
-    if tracker_name != "csrt" and timer is not None:
+    if timer is not None:
         timer.restore()
         record["stages"] = stage_timing.report(timer, seconds)
     print(json.dumps(record))

@@ -73,7 +73,7 @@ def instrument() -> StageTimer:
     """Wrap the library's stage functions (call before creating the tracker)."""
     import scipy.fft as sfft
 
-    from arcf import admm, scale, tracker
+    from arcf import scale, tracker
     from arcf.features import extract
 
     timer = StageTimer()
@@ -121,7 +121,6 @@ def instrument() -> StageTimer:
         timer.wrap(tracker, name, "aberrance")
     timer.wrap(scale.DSSTScaleFilter, "estimate", "scale filter")
     timer.wrap(scale.DSSTScaleFilter, "update", "scale filter")
-    _ = admm  # the solver is reached through the tracker module's name
     return timer
 
 
