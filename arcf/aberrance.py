@@ -61,3 +61,15 @@ def release_target(m_prev_shifted: np.ndarray) -> np.ndarray:
     term. :func:`arcf.admm.solve_filter` divides every target by T, hence the factor T here.
     """
     return m_prev_shifted * float(m_prev_shifted.size)
+
+
+def symmetric_half(spectrum: np.ndarray) -> np.ndarray:
+    """The conjugate-symmetric part of a full (H, W) spectrum, (X(n) + conj(X(-n))) / 2, as the
+    half spectrum (H, W//2+1) that ``rfft2`` would give for the real map it is the DFT of.
+
+    For the release's target (a real map read as a spectrum) this is (T + flip(T)) / 2, flip
+    reversing both axes about index 0 (``TrackerParams.spectra = "half"``).
+    """
+    h, w = spectrum.shape
+    mirrored = np.conj(np.roll(spectrum[::-1, ::-1], (1, 1), axis=(0, 1)))
+    return (0.5 * (spectrum + mirrored))[:, : w // 2 + 1]

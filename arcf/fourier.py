@@ -95,6 +95,23 @@ def spatial_response(spectrum: np.ndarray, shape: tuple[int, int], hermitian: bo
     return sfft.irfftn(spectrum, s=(shape[1], shape[0]), axes=(-1, -2))
 
 
+def shift_spectrum(
+    x_f: np.ndarray, shift: tuple[float, float], shape: tuple[int, int]
+) -> np.ndarray:
+    """The spectra ``(..., H, W')`` of maps moved by ``shift`` = (rows, cols) cells, so that
+    what was at ``shift`` from the origin comes to the origin: ``x(n + shift)``, by the shift
+    theorem, ``X(k) exp(2 pi i k shift / N)`` (ECO's ``shift_sample``).
+
+    ``W'`` is ``W`` (full spectra) or ``W // 2 + 1`` (half spectra of real maps). The move is
+    circular: what leaves one border comes in at the other.
+    """
+    h, w = shape
+    ky = signed_indices(h).astype(np.float64)
+    kx = signed_indices(w).astype(np.float64)[: x_f.shape[-1]]
+    ramp = np.exp(2j * np.pi * (ky[:, None] * (shift[0] / h) + kx[None, :] * (shift[1] / w)))
+    return x_f * ramp.astype(x_f.dtype)
+
+
 def first_argmax_colmajor(m: np.ndarray) -> tuple[int, int]:
     """(row, col) of the maximum of a 2-D map, ties broken as MATLAB's column-major ``find``."""
     flat = np.argmax(m.T)

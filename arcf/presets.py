@@ -26,6 +26,8 @@ AberranceMode = Literal["paper", "release"]
 ScaleMode = Literal["search", "filter"]
 SizingMode = Literal["filter_max_area", "sample_area"]
 SamplingMode = Literal["release", "pyramid"]
+SpectraMode = Literal["release", "half"]
+TrainingSampleMode = Literal["extract", "shift"]
 
 
 @dataclass(frozen=True)
@@ -109,6 +111,26 @@ class TrackerParams:
     #: interpolation (``arcf.features.patches.pyramid_windows``), an approximation that is
     #: several times cheaper on large targets (docs/benchmarks.md §3).
     sampling: SamplingMode = "release"
+    #: Spectral layout of the release's aberrance term (only read with ``aberrance="release"``
+    #: and gamma > 0; the other formulations are conjugate symmetric and always use half
+    #: spectra). "release": full spectra, as the release computes them: its target is a spatial
+    #: map used as a spectrum, so its filter is not conjugate symmetric. "half": the target
+    #: projected onto its conjugate-symmetric part, (T(n) + conj(T(-n))) / 2, which makes every
+    #: spectrum that of a real map and halves the transforms and ADMM. The part dropped is the
+    #: one whose spatial filter is imaginary: the g-, h- and multiplier steps never mix it into
+    #: the symmetric part, and Newton's peak search reads only the real part of the response's
+    #: series; it reaches the release's boxes only through MATLAB's ``ifft2(.., 'symmetric')``
+    #: reading half of a non-symmetric spectrum. An approximation, measured in
+    #: docs/benchmarks.md §3.
+    spectra: SpectraMode = "release"
+    #: Where each frame's training sample comes from. "extract" (release): a new window cut
+    #: at the new position and scale, its features and their DFT. "shift": the detection
+    #: sample of the chosen scale, moved onto the new position by the DFT's shift theorem
+    #: (ECO's ``shift_sample``, Danelljan et al., CVPR 2017), which saves one window, its
+    #: features and transforms per frame; an approximation (the cosine window moves with the
+    #: content, and the wrapped-in border is the opposite border's), measured in
+    #: docs/benchmarks.md §3.
+    training_sample: TrainingSampleMode = "extract"
     #: Scale each feature sample to unit mean energy per element, as ECO/STRCF's
     #: ``extract_features`` does (``normalize_power = 2``, ``normalize_size``, ``normalize_dim``).
     #: Off in every preset, as the reference notes describe the release; measured as an
@@ -165,6 +187,8 @@ class TrackerParams:
             ("fhog_arithmetic", ("exact", "release")),
             ("sizing", ("filter_max_area", "sample_area")),
             ("sampling", ("release", "pyramid")),
+            ("spectra", ("release", "half")),
+            ("training_sample", ("extract", "shift")),
         ):
             if getattr(self, name) not in allowed:
                 problems.append(f"{name} must be one of {allowed}, got {getattr(self, name)!r}")
@@ -221,6 +245,10 @@ ARCF_H = TrackerParams(
     # Measured best on the 9 shared sequences (docs/benchmarks.md §2): the release's form
     # P 0.592 / AUC 0.350, the paper's 0.521 / 0.315 at any γ in 0..1.5 (it loses truck4_2).
     aberrance="release",
+    # Not the release's layout: its target's conjugate-symmetric part in half spectra, measured
+    # on the 9 shared sequences with the pyramid (docs/benchmarks.md §3): P / AUC 0.598 / 0.359
+    # against the release-compatible 0.592 / 0.350, no sequence lost, 1.2x the frame rate.
+    spectra="half",
 )
 
 ARCF_HC = TrackerParams(
@@ -250,7 +278,8 @@ PRESETS: dict[str, TrackerParams] = {p.name: p for p in (ARCF_H, ARCF_HC, BACF)}
 #: are compared with the release's own runs (docs/benchmarks.md §2):
 #: ``create_tracker("arcf-h", **RELEASE_COMPATIBLE)``.
 RELEASE_COMPATIBLE: Mapping[str, Any] = MappingProxyType(
-    {"aberrance": "release", "sampling": "release", "fhog_arithmetic": "release"}
+    {"aberrance": "release", "sampling": "release", "fhog_arithmetic": "release",
+     "spectra": "release", "training_sample": "extract"}
 )
 
 #: Parameters that name files on the host. A library user sets them; a service must not let a

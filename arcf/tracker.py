@@ -24,7 +24,14 @@ import cv2
 import numpy as np
 import scipy.fft as sfft
 
-from .aberrance import map_difference, paper_target, peak_index, release_target, shift_to
+from .aberrance import (
+    map_difference,
+    paper_target,
+    peak_index,
+    release_target,
+    shift_to,
+    symmetric_half,
+)
 from .admm import Crop, solve_filter
 from .errors import InvalidBoxError, InvalidFrameError, NotInitializedError, UnknownPresetError
 from .features.extract import FeatureExtractor
@@ -37,6 +44,7 @@ from .fourier import (
     hann2d,
     newton_peak,
     peak_to_sidelobe,
+    shift_spectrum,
     spatial_response,
 )
 from .presets import TrackerParams, make_params
@@ -83,8 +91,11 @@ class ARCFTracker:
         self.params = params
         self._colornames_path = str(colornames_path) if colornames_path is not None else None
         self._initialized = False
-        #: Paper formulation (or γ = 0): filters are real in space, half spectra suffice.
-        self._hermitian = params.aberrance == "paper" or params.gamma == 0
+        #: Paper formulation (or γ = 0, or the release's target made conjugate symmetric):
+        #: filters are real in space, half spectra suffice.
+        self._hermitian = (
+            params.aberrance == "paper" or params.gamma == 0 or params.spectra == "half"
+        )
         #: fHOG's arithmetic: the preset's mode, or a CPU's measured SSE tables replayed.
         self._fhog_arithmetic: FhogArithmetic = params.fhog_arithmetic
         if params.fhog_sse_table is not None:
@@ -163,8 +174,12 @@ class ARCFTracker:
         self._frame_index += 1
         response, peak = self._detect(image)
         frob, spectral, target_f = self._aberrance(response)
+        if self.params.training_sample == "shift":
+            sample = self._shifted_sample()
+        else:
+            sample = self._training_sample(image)
         self._model_xf = (1 - self.params.learning_rate) * self._model_xf + (
-            self.params.learning_rate * self._training_sample(image)
+            self.params.learning_rate * sample
         )
         self._g_f = self._solve(target_f)
         if self._scale_filter is not None:
@@ -261,7 +276,11 @@ class ARCFTracker:
         p = self.params
         sample_pos = self._sample_pos()
         patches = self._patches(image, sample_pos, self._scale_factors)
-        xtf = self._fwd(self._extractor(patches, self._color, self._window))  # (S, D, H, W')
+        if p.training_sample == "shift":
+            maps = self._extractor(patches, self._color)  # kept unwindowed for training
+            xtf = self._fwd(maps * self._window)  # (S, D, H, W')
+        else:
+            xtf = self._fwd(self._extractor(patches, self._color, self._window))
         rf = correlate(self._g_f, xtf)  # (S, H, W')
         if rf.shape[0] == 1:
             response = spatial_response(rf[0], self._use_sz, self._hermitian)[None]
@@ -271,11 +290,19 @@ class ARCFTracker:
         disp_r, disp_c, sind, peak = newton_peak(response, full_rf, p.newton_iterations)
 
         factor = float(self._scale_factors[sind])
-        step_r = disp_r * self._cell_px[0] * self._csf * factor
-        step_c = disp_c * self._cell_px[1] * self._csf * factor
+        px_per_cell = (self._cell_px[0] * self._csf * factor, self._cell_px[1] * self._csf * factor)
+        step_r = disp_r * px_per_cell[0]
+        step_c = disp_c * px_per_cell[1]
         if p.round_translation:
             step_r, step_c = float(matlab_round(step_r)), float(matlab_round(step_c))
         self._pos = (sample_pos[0] + step_r, sample_pos[1] + step_c)
+        # What "shift" training reuses: this sample, and where the new position lies in it.
+        if p.training_sample == "shift":
+            self._detection_maps = maps[sind]
+        self._detection_shift = (
+            (self._sample_pos()[0] - sample_pos[0]) / px_per_cell[0],
+            (self._sample_pos()[1] - sample_pos[1]) / px_per_cell[1],
+        )
         if self._scale_filter is not None:
             factor = self._scale_filter.estimate(image, self._pos, self._base_target_sz, self._csf)
         self._csf = float(np.clip(self._csf * factor, self._min_scale, self._max_scale))
@@ -293,6 +320,8 @@ class ARCFTracker:
         if self.params.gamma:
             if self.params.aberrance == "paper":
                 target_f = self._fwd(paper_target(self._m_prev, self._p_prev).astype(np.float32))
+            elif self._hermitian:
+                target_f = symmetric_half(release_target(m_prev_shifted)).astype(np.complex64)
             else:
                 target_f = release_target(m_prev_shifted).astype(np.complex64)
         self._m_prev, self._p_prev = m_curr, p_curr
@@ -302,6 +331,16 @@ class ARCFTracker:
         """Step 3a: windowed features at the new position and scale, in the Fourier domain."""
         patch = self._patches(image, self._sample_pos(), (1.0,))
         return self._fwd(self._extractor(patch, self._color, self._window)[0])
+
+    def _shifted_sample(self) -> np.ndarray:
+        """Step 3a with ``training_sample="shift"``: the detection sample of the chosen scale
+        moved onto the new position, by whole cells in space (so that the cosine window stays
+        centred) and by the remaining fraction of a cell in the Fourier domain."""
+        dr, dc = self._detection_shift
+        whole = (int(np.round(dr)), int(np.round(dc)))
+        maps = np.roll(self._detection_maps, (-whole[0], -whole[1]), axis=(-2, -1))
+        xf = self._fwd(maps * self._window)
+        return shift_spectrum(xf, (dr - whole[0], dc - whole[1]), self._use_sz)
 
     def _solve(self, target_f: np.ndarray | None) -> np.ndarray:
         """Step 3b: the filter ĝ from the running model by ADMM."""

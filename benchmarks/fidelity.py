@@ -13,7 +13,7 @@ Runs one-pass evaluation of each configuration on every sequence present under t
 5. with ``--gammas``, a sweep of γ for the paper formulation.
 
 A configuration is ``<preset>[:<formulation>][:gamma=<value>][:fhog=<exact|release>]
-[:sampling=<release|pyramid>]``, e.g. ``arcf-h:release``, ``arcf-hc:paper:gamma=0.3``. A bare
+[:sampling=<release|pyramid>][:spectra=<release|half>][:training=<extract|shift>]``, e.g. ``arcf-h:release``, ``arcf-hc:paper:gamma=0.3``. A bare
 preset name runs the shipped preset; a formulation runs on the release's sampler, and
 ``release`` is the release-compatible configuration (``bacf:release`` too, although γ = 0
 leaves no formulation to choose).
@@ -79,6 +79,10 @@ def parse_config(config: str) -> tuple[str, dict[str, Any]]:
             overrides["fhog_arithmetic"] = part[5:]
         elif part.startswith("sampling="):
             overrides["sampling"] = part[9:]
+        elif part.startswith("spectra="):
+            overrides["spectra"] = part[8:]
+        elif part.startswith("training="):
+            overrides["training_sample"] = part[9:]
         else:
             raise ValueError(f"bad configuration part {part!r} in {config!r}")
     if preset not in PUBLISHED:

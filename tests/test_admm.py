@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from arcf.aberrance import map_difference, release_target
+from arcf.aberrance import map_difference, release_target, symmetric_half
 from arcf.admm import Crop, objective, solve_filter
-from arcf.fourier import gaussian_label
+from arcf.fourier import gaussian_label, shift_spectrum
 
 
 def _problem(seed: int = 0, d: int = 3, n: int = 12, crop: int = 4):
@@ -106,6 +106,40 @@ def test_half_and_full_spectrum_agree_for_real_targets():
     assert np.allclose(g_full[..., : g_half.shape[-1]], g_half, atol=1e-8)
 
 
+@pytest.mark.parametrize("n", [12, 13])
+def test_symmetric_half_is_what_a_real_inverse_keeps(n):
+    """``symmetric_half`` of any spectrum is the half spectrum of the real part of its inverse."""
+    rng = np.random.default_rng(n)
+    x = rng.standard_normal((n, n + 3)) + 1j * rng.standard_normal((n, n + 3))
+    half = symmetric_half(x)
+    assert half.shape == (n, (n + 3) // 2 + 1)
+    np.testing.assert_allclose(half, np.fft.rfft2(np.real(np.fft.ifft2(x))), atol=1e-12)
+
+
+@pytest.mark.parametrize("n", [12, 13])
+@pytest.mark.parametrize("iterations", [1, 2, 5])
+def test_release_target_in_half_spectra_solves_for_the_symmetric_part(n, iterations):
+    """Why ``spectra="half"`` may drop the release target's anti-symmetric part: ADMM never
+    mixes it into the conjugate-symmetric part of the filter, so the half-spectrum solve with
+    ``symmetric_half(target)`` is the symmetric part of the release's full-spectrum solve, which
+    is all that the real part of a response reads."""
+    x, y, target, _ = _problem(seed=n, n=n)
+    crop = Crop((n, n), (4, 5))
+    spectrum_like = release_target(target).astype(np.complex128)  # a real map used as a spectrum
+    g_full, h_full = solve_filter(np.fft.fft2(x), np.fft.fft2(y), spectrum_like, gamma=0.71,
+                                  admm_lambda=0.01, iterations=iterations, crop=crop,
+                                  hermitian=False)
+    g_half, h_half = solve_filter(np.fft.rfft2(x), np.fft.rfft2(y),
+                                  symmetric_half(spectrum_like), gamma=0.71, admm_lambda=0.01,
+                                  iterations=iterations, crop=crop, hermitian=True)
+    # the release's filter is not conjugate symmetric, so the two layouts do differ ...
+    assert np.abs(g_full[..., : g_half.shape[-1]] - g_half).max() > 1e-3 * np.abs(g_half).max()
+    # ... by exactly its anti-symmetric part
+    for d in range(x.shape[0]):
+        np.testing.assert_allclose(symmetric_half(g_full[d]), g_half[d], atol=1e-9)
+        np.testing.assert_allclose(symmetric_half(h_full[d]), h_half[d], atol=1e-9)
+
+
 def test_map_difference_paper_and_release_forms():
     """(Frobenius norm of D, largest singular value of |D|) with D = M_prev[psi] - M_curr: the
     release's ``norm(abs(D))`` is not the signed difference's spectral norm."""
@@ -190,3 +224,20 @@ def test_pruned_h_step_equals_the_2d_transforms(hermitian, d, h, w, sh, sw):
     got = h_step(spectrum, crop, 0.9993, hermitian)
     assert got.dtype == np.complex64
     np.testing.assert_array_equal(got.view(np.uint32), expected.view(np.uint32))
+
+
+@pytest.mark.parametrize("shape", [(12, 12), (13, 10)])
+@pytest.mark.parametrize("half", [True, False])
+def test_shift_spectrum_moves_maps_circularly(shape, half):
+    """``shift_spectrum`` by whole cells is ``np.roll`` in space; by fractions it interpolates
+    a band-limited map between them (the DFT shift theorem)."""
+    fwd = np.fft.rfft2 if half else np.fft.fft2
+    x = np.random.default_rng(3).standard_normal((2, *shape))
+    moved = shift_spectrum(fwd(x), (2.0, -3.0), shape)
+    np.testing.assert_allclose(moved, fwd(np.roll(x, (-2, 3), axis=(-2, -1))), atol=1e-9)
+    # half a cell twice is one cell
+    h, w = shape
+    smooth = np.cos(2 * np.pi * np.arange(w) / w)[None, :] * np.ones((h, 1))
+    twice = shift_spectrum(shift_spectrum(np.fft.fft2(smooth), (0, 0.5), shape), (0, 0.5), shape)
+    np.testing.assert_allclose(np.real(np.fft.ifft2(twice)), np.roll(smooth, -1, axis=1),
+                               atol=1e-9)

@@ -332,6 +332,35 @@ def test_paper_and_release_aberrance_formulations(preset: str) -> None:
     assert np.abs(centres(boxes_p) - centres(boxes_r)).max() < 2.0
 
 
+def test_half_spectra_follow_the_release_layout_closely() -> None:
+    """ARCF-H's ``spectra="half"`` drops only the part of the release's filter that a real
+    response does not read, and which reaches the release's boxes only through MATLAB's
+    ``ifft2(.., 'symmetric')``: the same first frame, then boxes within a pixel or two."""
+    kw = (("n", 15),)
+    half = tracked("arcf-h", kw)
+    full = tracked("arcf-h", kw, spectra="release")
+    assert make_params("arcf-h").spectra == "half"
+    _, gt = scene(**dict(kw))
+    assert centre_errors(half, gt).max() < 3.0
+    assert half[0].box == full[0].box
+    assert half[0].peak == pytest.approx(full[0].peak, rel=1e-4)
+    boxes_h = np.array([r.box for r in half])
+    boxes_f = np.array([r.box for r in full])
+    assert np.abs(centres(boxes_h) - centres(boxes_f)).max() <= 2.0
+    assert np.allclose([r.peak for r in half], [r.peak for r in full], rtol=0.2)
+
+
+@pytest.mark.parametrize("preset", ["arcf-h", "arcf-hc"])
+def test_shifted_training_samples_follow_the_target(preset: str) -> None:
+    shifted = tracked(preset, MOVING, training_sample="shift")
+    extracted = tracked(preset, MOVING)
+    _, gt = scene()
+    assert centre_errors(shifted, gt).max() < 3.0
+    assert abs(shifted[-1].scale - 1.0) < 0.1
+    # a different sample: the filters, hence the peaks, differ
+    assert [r.peak for r in shifted[1:]] != [r.peak for r in extracted[1:]]
+
+
 @pytest.mark.parametrize("preset", PRESET_NAMES)
 def test_reinit_equals_a_fresh_tracker(preset: str) -> None:
     first, gt_a = scene(n=6)
@@ -700,6 +729,8 @@ def test_invalid_parameter_value_rejected_up_front(override: dict) -> None:
         {"fhog_sse_table": 3},
         {"fhog_sse_table": "tables.txt", "fhog_arithmetic": "exact"},
         {"sampling": "eco"},  # removed: both trackers sample with BACF's get_pixels
+        {"spectra": "full"},
+        {"training_sample": "detection"},
         {"scale_mode": "foo"},
         {"sizing": "foo"},
     ],
@@ -743,8 +774,12 @@ def test_documented_preset_values() -> None:
     # release's get_pixels, which it needs to keep BMX3 (docs/benchmarks.md §3)
     assert ARCF_H.sampling == BACF.sampling == "pyramid" and ARCF_HC.sampling == "release"
     release = make_params("arcf-h", **arcf.RELEASE_COMPATIBLE)
-    assert (release.aberrance, release.sampling, release.fhog_arithmetic) == (
-        "release", "release", "release")
+    assert (release.aberrance, release.sampling, release.fhog_arithmetic, release.spectra,
+            release.training_sample) == ("release", "release", "release", "release", "extract")
+    # ARCF-H solves in half spectra (as accurate, faster); every preset extracts its training
+    # sample as the release does (shifting the detection sample lost truck4_2, §3)
+    assert ARCF_H.spectra == "half" and ARCF_HC.spectra == "release"
+    assert ARCF_H.training_sample == ARCF_HC.training_sample == BACF.training_sample == "extract"
     # each ships the aberrance formulation that measured best (docs/benchmarks.md §2)
     assert ARCF_H.aberrance == "release" and ARCF_HC.aberrance == "paper"
     # ARCF-H: the release's values (paper: 5 iterations, 0.0192)

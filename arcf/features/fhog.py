@@ -733,7 +733,8 @@ def _histogram(
     else:
         index, w_top, w_bottom = _voting_layout(n_img, hb, wb, cell)
         acc = _scratch("acc", (2, size + wb + 2), np.float32)
-        _vote(start, index, mag.reshape(-1), w_top, w_bottom, wb, acc, out)
+        _vote(start, index, mag.reshape(-1), w_top, w_bottom, wb, acc, out)  # rescales too
+        return
     _rescale_border(out)
 
 
@@ -779,20 +780,36 @@ def _vote(start, index, mag, w_top, w_bottom, wb, acc, out):  # pragma: no cover
                 m = mag[p]
                 left[k] += m * w.real
                 right[k] += m * w.imag
-    _combine_votes(left, right, wb, out)
+    _combine_votes(left, right, wb, out)  # includes _rescale_border
 
 
 @kernel
 def _combine_votes(left, right, wb, out):  # pragma: no cover - compiled
-    """Cell (i, j) = left votes at padded (i + 1, j + 1) + right votes at padded (i + 1, j)."""
+    """Cell (i, j) = left votes at padded (i + 1, j + 1) + right votes at padded (i + 1, j),
+    then ``_rescale_border``'s factors, with the same float32 products in the same order
+    (rows first, then columns; ``(8/7)^2`` rounded once where the grid is one cell wide)."""
     n_bins, n_img, hb, _ = out.shape
     plane = n_img * (hb + 1) * (wb + 1)
+    s = np.float32(8.0 / 7.0)
+    s2 = s * s
     for o in range(n_bins):
         for i in range(n_img):
             for y in range(hb):
                 base = o * plane + (i * (hb + 1) + y + 1) * (wb + 1)
+                row = out[o, i, y]
                 for x in range(wb):
-                    out[o, i, y, x] = left[base + x + 1] + right[base + x]
+                    row[x] = left[base + x + 1] + right[base + x]
+                if hb == 1:
+                    for x in range(wb):
+                        row[x] = row[x] * s2
+                elif y == 0 or y == hb - 1:
+                    for x in range(wb):
+                        row[x] = row[x] * s
+                if wb == 1:
+                    row[0] = row[0] * s2
+                else:
+                    row[0] = row[0] * s
+                    row[wb - 1] = row[wb - 1] * s
 
 
 def _release_histogram(x: np.ndarray, cell: int, n_orients: int, out: np.ndarray) -> None:
@@ -809,8 +826,7 @@ def _release_histogram(x: np.ndarray, cell: int, n_orients: int, out: np.ndarray
     index, w_top, w_bottom = _voting_layout(n_img, hb, wb, cell)
     acc = _scratch("acc", (2, size + wb + 2), np.float32)
     _release_votes(np.ascontiguousarray(x), _band_order(hb, cell), index, w_top, w_bottom,
-                   _release_plane_offsets(n_orients, plane), wb, w0, acc, out)
-    _rescale_border(out)
+                   _release_plane_offsets(n_orients, plane), wb, w0, acc, out)  # rescales too
 
 
 @lru_cache(maxsize=64)
