@@ -71,5 +71,6 @@ def symmetric_half(spectrum: np.ndarray) -> np.ndarray:
     reversing both axes about index 0 (``TrackerParams.spectra = "half"``).
     """
     h, w = spectrum.shape
-    mirrored = np.conj(np.roll(spectrum[::-1, ::-1], (1, 1), axis=(0, 1)))
-    return (0.5 * (spectrum + mirrored))[:, : w // 2 + 1]
+    half = w // 2 + 1
+    mirrored = np.conj(spectrum[np.ix_(-np.arange(h) % h, -np.arange(half) % w)])  # X(-n)*
+    return 0.5 * (spectrum[:, :half] + mirrored)

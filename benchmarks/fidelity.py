@@ -13,7 +13,8 @@ Runs one-pass evaluation of each configuration on every sequence present under t
 5. with ``--gammas``, a sweep of γ for the paper formulation.
 
 A configuration is ``<preset>[:<formulation>][:gamma=<value>][:fhog=<exact|release>]
-[:sampling=<release|pyramid>][:spectra=<release|half>][:training=<extract|shift>]``, e.g. ``arcf-h:release``, ``arcf-hc:paper:gamma=0.3``. A bare
+[:sampling=<release|pyramid>][:spectra=<release|half>][:training=<extract|shift>]``, e.g.
+``arcf-h:release``, ``arcf-hc:paper:gamma=0.3``. A bare
 preset name runs the shipped preset; a formulation runs on the release's sampler, and
 ``release`` is the release-compatible configuration (``bacf:release`` too, although γ = 0
 leaves no formulation to choose).
