@@ -818,15 +818,35 @@ def _release_histogram(x: np.ndarray, cell: int, n_orients: int, out: np.ndarray
     seven full-size intermediates that the separate steps write and read back.
     """
     n_img, hb, wb = out.shape[1:]
-    w0 = wb * cell
     plane = n_img * (hb + 1) * (wb + 1)
     size = 2 * n_orients * plane
     if size + wb + 2 >= 2**31:
         raise ValueError("fhog: batch too large for int32 histogram indices; split it")
-    index, w_top, w_bottom = _voting_layout(n_img, hb, wb, cell)
+    row_base, col0, w_top, w_bottom = _voting_rows(hb, wb, cell)
     acc = _scratch("acc", (2, size + wb + 2), np.float32)
-    _release_votes(np.ascontiguousarray(x), _band_order(hb, cell), index, w_top, w_bottom,
-                   _release_plane_offsets(n_orients, plane), wb, w0, acc, out)  # rescales too
+    # the kernel also applies _rescale_border
+    _release_votes(np.ascontiguousarray(x), _band_order(hb, cell), row_base, col0, w_top,
+                   w_bottom, _release_plane_offsets(n_orients, plane), hb, wb, cell, acc, out)
+
+
+@lru_cache(maxsize=64)
+def _voting_rows(
+    hb: int, wb: int, cell: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``_voting_layout`` of one image, factored: its target index is ``row_base[y] +
+    col0[x]`` (int64 ``(h0,)``, int32 ``(w0,)``) and its weights depend on the row only through
+    ``y % cell``, so ``w_top`` / ``w_bottom`` are ``(cell, w0)``: the same values, read from a
+    few kilobytes instead of three arrays the size of the image."""
+    index, w_top, w_bottom = _voting_layout(1, hb, wb, cell)
+    h0, w0 = hb * cell, wb * cell
+    index = index.reshape(h0, w0)
+    col0 = (index[0] - index[0, 0]).astype(np.int32)
+    row_base = index[:, 0].astype(np.int64)
+    assert np.array_equal(index, row_base[:, None] + col0[None, :])
+    w_top, w_bottom = (w.reshape(h0, w0)[:cell].copy() for w in (w_top, w_bottom))
+    for arr in (row_base, col0, w_top, w_bottom):
+        arr.setflags(write=False)
+    return row_base, col0, w_top, w_bottom
 
 
 @lru_cache(maxsize=64)
@@ -848,17 +868,18 @@ def _band_order(hb: int, cell: int) -> np.ndarray:
 
 @kernel
 def _release_votes(
-    x, rows, index, w_top, w_bottom, offsets, wb, w0, acc, out
+    x, rows, row_base, col0, w_top, w_bottom, offsets, hb, wb, cell, acc, out
 ):  # pragma: no cover - compiled
     """Per pixel row (in ``_band_order``): the dominant gradient (``_gradient_row``), the
     modelled ``rsqrt`` (``_release_rsqrt``: float64 ``1 / sqrt``, rounded to 13 bits, capped),
     ``2 M = rcp(_m / 2)`` (``_release_rcp``), the release's orientation key
-    (``_release_keys``, which re-applies the cap: a no-op) and both bilinear votes (``_vote``),
-    each with the same float32 operations as the separate step it replaces.
+    (``_release_keys``, which re-applies the cap: a no-op) and both bilinear votes (``_vote``,
+    its layout read in the factored form of ``_voting_rows``), each with the same float32
+    operations as the separate step it replaces; then ``_combine_votes``.
     """
     n_img, height, width, channels = x.shape
-    h0 = rows.shape[0]
-    hw = h0 * w0
+    w0 = wb * cell
+    img_cells = (hb + 1) * (wb + 1)  # one image's padded plane
     planes = np.empty((channels, height, width), np.float32)
     work = np.empty((3, w0), np.float32)
     gx = np.empty(w0, np.float32)
@@ -889,15 +910,16 @@ def _release_votes(
             for col in range(w0):
                 mag[col] = np.float32(1.0) / half_m[col]
             _release_keys(gx, gy, half_m, offsets, start)
-            q0 = y * w0
-            p0 = i * hw + q0
+            base = i * img_cells + row_base[y]
+            top = w_top[y % cell]
+            bottom = w_bottom[y % cell]
             for col in range(w0):
-                k = start[col] + index[p0 + col]
+                k = start[col] + base + col0[col]
                 m = mag[col]
-                w = w_top[q0 + col]
+                w = top[col]
                 left[k] += m * w.real
                 right[k] += m * w.imag
-                w = w_bottom[q0 + col]
+                w = bottom[col]
                 left[k + second] += m * w.real
                 right[k + second] += m * w.imag
     _combine_votes(left, right, wb, out)
@@ -948,13 +970,15 @@ def _normalise_cells(r, n, eps, half_clip, texture, out):  # pragma: no cover - 
     """
     n_bins = 2 * n
     _, n_img, hb, wb = r.shape
+    hw = hb * wb
     nbr = hb - 1 if hb > 1 else hb
     nbc = wb - 1 if wb > 1 else wb
     energy = np.empty((hb, wb), np.float32)
     block = np.empty((nbr, nbc), np.float32)
-    nk = np.empty(wb, np.float32)
-    terms = np.empty((3 * n, wb), np.float32)
-    tex = np.empty(wb, np.float32)
+    norms = np.empty((4, hb, wb), np.float32)
+    terms = np.empty((3 * n, hw), np.float32)
+    tex = np.empty((4, hw), np.float32)
+    hc = half_clip
     for i in range(n_img):
         energy[:] = 0.0
         for o in range(n):
@@ -970,23 +994,44 @@ def _normalise_cells(r, n, eps, half_clip, texture, out):  # pragma: no cover - 
                     e1 = energy[y, x + 1] + energy[y + 1, x + 1] if hb > 1 else energy[y, x + 1]
                     e0 = e0 + e1
                 block[y, x] = np.float32(0.5) / np.sqrt(e0 + eps)
-        for y in range(hb):
-            for k in range(4):
-                # The block starting at this cell, one row up, one column left, up-left.
+        for k in range(4):
+            for y in range(hb):
                 by = min(max(y - 1, 0), nbr - 1) if k & 1 else min(y, nbr - 1)
                 for x in range(wb):
                     bx = min(max(x - 1, 0), nbc - 1) if k & 2 else min(x, nbc - 1)
-                    nk[x] = block[by, bx]
-                for c in range(3 * n):
-                    for x in range(wb):
-                        t = min(r[c, i, y, x] * nk[x], half_clip)
-                        if c == 0:
-                            tex[x] = t
-                        elif c < n_bins:
-                            tex[x] = tex[x] + t
-                        terms[c, x] = t if k == 0 else terms[c, x] + t
+                    norms[k, y, x] = block[by, bx]
+        nf = norms.reshape(4, hw)  # each cell's four block normalisers, plane by plane
+        # Whole planes at a time, one array written per loop (LLVM vectorises these, not
+        # loops over one row of cells nor loops that write several arrays).
+        n0, n1, n2, n3 = nf[0], nf[1], nf[2], nf[3]
+        for c in range(3 * n):
+            rp = r[c, i].reshape(hw)
+            tc = terms[c]
+            for p in range(hw):
+                v = rp[p]
+                tc[p] = ((min(v * n0[p], hc) + min(v * n1[p], hc)) + min(v * n2[p], hc)) + min(
+                    v * n3[p], hc)
+            if c < n_bins:
+                for k in range(4):
+                    nk = nf[k]
+                    xk = tex[k]
+                    if c == 0:
+                        for p in range(hw):
+                            xk[p] = min(rp[p] * nk[p], hc)
+                    else:
+                        for p in range(hw):
+                            xk[p] = xk[p] + min(rp[p] * nk[p], hc)
+        for k in range(4):
+            for y in range(hb):
                 for x in range(wb):
-                    out[i, y, x, 3 * n + k] = tex[x] * texture
-            for x in range(wb):
-                for c in range(3 * n):
-                    out[i, y, x, c] = terms[c, x]
+                    out[i, y, x, 3 * n + k] = tex[k, y * wb + x] * texture
+        if out.strides[3] > out.strides[2]:
+            for c in range(3 * n):
+                for y in range(hb):
+                    for x in range(wb):
+                        out[i, y, x, c] = terms[c, y * wb + x]
+        else:
+            for y in range(hb):
+                for x in range(wb):
+                    for c in range(3 * n):
+                        out[i, y, x, c] = terms[c, y * wb + x]
