@@ -97,6 +97,17 @@ def spatial_response(spectrum: np.ndarray, shape: tuple[int, int], hermitian: bo
     return sfft.irfftn(spectrum, s=(shape[1], shape[0]), axes=(-1, -2))
 
 
+def full_spectrum(half: np.ndarray, width: int) -> np.ndarray:
+    """The full ``(..., H, width)`` DFT of real maps from their half spectra ``(..., H, width //
+    2 + 1)`` (``rfft2``'s layout), the missing columns by conjugate symmetry, X(-k) = X(k)*."""
+    h, kept = half.shape[-2:]
+    out = np.empty((*half.shape[:-1], width), half.dtype)
+    out[..., :kept] = half
+    cols = np.arange(kept, width)
+    out[..., kept:] = np.conj(half[..., -np.arange(h) % h, :][..., width - cols])
+    return out
+
+
 def shift_spectrum(
     x_f: np.ndarray, shift: tuple[float, float], shape: tuple[int, int]
 ) -> np.ndarray:

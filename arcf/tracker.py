@@ -40,6 +40,7 @@ from .features.patches import as_rgb, matlab_round, pyramid_windows, release_win
 from .features.sse import load_sse_tables
 from .fourier import (
     correlate,
+    full_spectrum,
     gaussian_label,
     hann2d,
     newton_peak,
@@ -286,7 +287,12 @@ class ARCFTracker:
             response = spatial_response(rf[0], self._use_sz, self._hermitian)[None]
         else:
             response = spatial_response(rf, self._use_sz, self._hermitian)
-        full_rf = sfft.fft2(response) if self._hermitian else rf
+        if not self._hermitian:
+            full_rf = rf
+        elif p.spectra == "half":  # what the release's Newton reads: the correlation's spectrum
+            full_rf = full_spectrum(rf, self._use_sz[1])
+        else:  # bit for bit the earlier formulation (the release-compatible BACF)
+            full_rf = sfft.fft2(response)
         disp_r, disp_c, sind, peak = newton_peak(response, full_rf, p.newton_iterations)
 
         factor = float(self._scale_factors[sind])

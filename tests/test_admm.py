@@ -8,7 +8,7 @@ import pytest
 
 from arcf.aberrance import map_difference, release_target, symmetric_half
 from arcf.admm import Crop, objective, solve_filter
-from arcf.fourier import gaussian_label, shift_spectrum
+from arcf.fourier import full_spectrum, gaussian_label, shift_spectrum
 
 
 def _problem(seed: int = 0, d: int = 3, n: int = 12, crop: int = 4):
@@ -241,3 +241,10 @@ def test_shift_spectrum_moves_maps_circularly(shape, half):
     twice = shift_spectrum(shift_spectrum(np.fft.fft2(smooth), (0, 0.5), shape), (0, 0.5), shape)
     np.testing.assert_allclose(np.real(np.fft.ifft2(twice)), np.roll(smooth, -1, axis=1),
                                atol=1e-9)
+
+
+@pytest.mark.parametrize("shape", [(12, 12), (13, 10), (9, 7)])
+def test_full_spectrum_completes_a_half_spectrum(shape):
+    x = np.random.default_rng(8).standard_normal((3, *shape))
+    np.testing.assert_allclose(full_spectrum(np.fft.rfft2(x), shape[1]), np.fft.fft2(x),
+                               atol=1e-12)
