@@ -125,11 +125,12 @@ class TrackerParams:
     spectra: SpectraMode = "release"
     #: Where each frame's training sample comes from. "extract" (release): a new window cut
     #: at the new position and scale, its features and their DFT. "shift": the detection
-    #: sample of the chosen scale, moved onto the new position by the DFT's shift theorem
-    #: (ECO's ``shift_sample``, Danelljan et al., CVPR 2017), which saves one window, its
-    #: features and transforms per frame; an approximation (the cosine window moves with the
-    #: content, and the wrapped-in border is the opposite border's), measured in
-    #: docs/benchmarks.md §3.
+    #: features of the chosen scale moved onto the new position, by whole cells in space and
+    #: by the remaining fraction of a cell with the DFT's shift theorem (as ECO's
+    #: ``shift_sample``, Danelljan et al., CVPR 2017), which saves one window and its fHOG per
+    #: frame; an approximation (the wrapped-in border is the opposite border's, the cell grid
+    #: is the detection window's). It loses UAV123 truck4_2 in ARCF-H, so no preset uses it
+    #: (docs/benchmarks.md §3).
     training_sample: TrainingSampleMode = "extract"
     #: Scale each feature sample to unit mean energy per element, as ECO/STRCF's
     #: ``extract_features`` does (``normalize_power = 2``, ``normalize_size``, ``normalize_dim``).
