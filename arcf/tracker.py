@@ -179,9 +179,10 @@ class ARCFTracker:
             sample = self._shifted_sample()
         else:
             sample = self._training_sample(image)
-        self._model_xf = (1 - self.params.learning_rate) * self._model_xf + (
-            self.params.learning_rate * sample
-        )
+        # x̂ <- (1 - η) x̂ + η x̂_t, in place: the same products and sum, no new model array
+        sample *= self.params.learning_rate
+        self._model_xf *= 1 - self.params.learning_rate
+        self._model_xf += sample
         self._g_f = self._solve(target_f)
         if self._scale_filter is not None:
             self._scale_filter.update(image, self._pos, self._base_target_sz, self._csf, False)
