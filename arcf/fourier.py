@@ -101,6 +101,9 @@ def full_spectrum(half: np.ndarray, width: int) -> np.ndarray:
     """The full ``(..., H, width)`` DFT of real maps from their half spectra ``(..., H, width //
     2 + 1)`` (``rfft2``'s layout), the missing columns by conjugate symmetry, X(-k) = X(k)*."""
     h, kept = half.shape[-2:]
+    if kept != width // 2 + 1:
+        raise ValueError(f"full_spectrum: a half spectrum of width {width} has "
+                         f"{width // 2 + 1} columns, got {kept}")
     out = np.empty((*half.shape[:-1], width), half.dtype)
     out[..., :kept] = half
     cols = np.arange(kept, width)
@@ -116,7 +119,10 @@ def shift_spectrum(
     theorem, ``X(k) exp(2 pi i k shift / N)`` (ECO's ``shift_sample``).
 
     ``W'`` is ``W`` (full spectra) or ``W // 2 + 1`` (half spectra of real maps). The move is
-    circular: what leaves one border comes in at the other.
+    circular: what leaves one border comes in at the other. A fractional move of an even-sized
+    grid gives the Nyquist row / column a complex phase, which no real map has (an inverse
+    ``irfft2`` drops part of it), as in ECO; the trackers' windowed maps carry next to nothing
+    there.
     """
     h, w = shape
     ky = signed_indices(h).astype(np.float64)
@@ -138,14 +144,17 @@ def newton_peak(
     """Sub-cell peak of a stack of response maps by Newton's method on their Fourier series.
 
     ``response``: real (S, H, W) maps, used for the integer starting point of each map.
-    ``spectrum``: full complex (S, H, W) DFTs of the maps (fft2 of ``response`` in the paper's
-    formulation; the raw, possibly non-Hermitian, spectrum in the release's).
+    ``spectrum``: full complex (S, H, W) DFTs of the maps: the raw, possibly non-Hermitian,
+    correlation spectrum in the release's formulation; with half spectra either ``fft2`` of
+    ``response`` or the correlation's half spectrum completed by ``full_spectrum``.
 
     The series f(y, x) = 1/(HW) sum_k R[k] exp(i (ky y + kx x)) is maximised jointly in (y, x) from
     each map's integer peak (BACF's ``resp_newton``); a map whose refined value did not increase
     keeps its integer peak. Returns (disp_row, disp_col, best_scale_index, peak_value) with the
     displacements in cells, wrapped into [-n/2, n/2).
     """
+    if iterations < 0:
+        raise ValueError(f"newton_peak: iterations must be >= 0, got {iterations}")
     s, h, w = response.shape
     ky = signed_indices(h).astype(np.float64)
     kx = signed_indices(w).astype(np.float64)
@@ -185,8 +194,10 @@ def _newton(rf, ky, kx, py, px, iterations):  # pragma: no cover - compiled
     for every map (the gradient and Hessian of the series' real part), and moves every map
     whose Newton step is finite; all maps stop together once the largest step (|dy| + |dx|)
     is below 1e-10, as BACF's ``resp_newton`` iterates them together. Sums run in storage
-    order (a BLAS product, the earlier formulation, sums in blocks: results differ in the last
-    bits, 1e-15 cells, far below the whole pixels the trackers round to).
+    order (a BLAS product, the earlier formulation, sums in blocks: positions differ in the
+    last bits, ~1e-15 cells on the trackers' maps, far below the whole pixels they round to;
+    more where the Hessian is nearly singular, e.g. maps one cell high, where any step is
+    rounding noise).
     """
     n_s, h, w = rf.shape
     re = np.ascontiguousarray(rf.real)

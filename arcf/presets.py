@@ -111,16 +111,18 @@ class TrackerParams:
     #: interpolation (``arcf.features.patches.pyramid_windows``), an approximation that is
     #: several times cheaper on large targets (docs/benchmarks.md §3).
     sampling: SamplingMode = "release"
-    #: Spectral layout of the release's aberrance term (only read with ``aberrance="release"``
-    #: and gamma > 0; the other formulations are conjugate symmetric and always use half
-    #: spectra). "release": full spectra, as the release computes them: its target is a spatial
-    #: map used as a spectrum, so its filter is not conjugate symmetric. "half": the target
-    #: projected onto its conjugate-symmetric part, (T(n) + conj(T(-n))) / 2, which makes every
-    #: spectrum that of a real map and halves the transforms and ADMM. The part dropped is the
-    #: one whose spatial filter is imaginary: the g-, h- and multiplier steps never mix it into
-    #: the symmetric part, and Newton's peak search reads only the real part of the response's
-    #: series; it reaches the release's boxes only through MATLAB's ``ifft2(.., 'symmetric')``
-    #: reading half of a non-symmetric spectrum. An approximation, measured in
+    #: Spectral layout. "release": as the release computes. With ``aberrance="release"`` and
+    #: gamma > 0 that means full spectra (its target is a spatial map used as a spectrum, so
+    #: its filter is not conjugate symmetric); the other formulations are real and use half
+    #: spectra, Newton's peak search then reading the FFT of the spatial response, bit for bit
+    #: as before. "half": half spectra everywhere. The release's target is projected onto its
+    #: conjugate-symmetric part, (T(n) + conj(T(-n))) / 2, which halves the transforms and ADMM;
+    #: the part dropped is the one whose spatial filter is imaginary: the g-, h- and multiplier
+    #: steps never mix it into the symmetric part, and Newton's search reads only the real part
+    #: of the response's series, so it reaches the release's boxes only through MATLAB's
+    #: ``ifft2(.., 'symmetric')`` reading half of a non-symmetric spectrum. Newton's search
+    #: reads the correlation's own spectrum, completed by symmetry (the release hands its
+    #: ``responsef`` to ``resp_newton``), one transform less. An approximation, measured in
     #: docs/benchmarks.md §3.
     spectra: SpectraMode = "release"
     #: Where each frame's training sample comes from. "extract" (release): a new window cut

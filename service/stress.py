@@ -320,7 +320,11 @@ def saturation_capacity(fleet: Fleet, *, streams: int = 12, seconds: float = 8.0
 
     If the workers keep up with the offer (it was no saturation: 90 % or more processed), the
     offer doubles and the measurement is repeated, up to ``max_streams`` streams; a faster
-    tracker would otherwise be sized by what was offered, not by what it can do."""
+    tracker would otherwise be sized by what was offered, not by what it can do. If they
+    still keep up at ``max_streams``, the result is a lower bound (logged by the caller's
+    ``run_overload`` as the capacity it used)."""
+    if streams < 1 or max_streams < streams:
+        raise ValueError(f"need 1 <= streams <= max_streams, got {streams}, {max_streams}")
     while True:
         added = fleet.add(streams)
         t0 = time.monotonic()

@@ -8,6 +8,7 @@ easy to check by reading.
 
 from __future__ import annotations
 
+import hashlib
 import math
 from concurrent.futures import ThreadPoolExecutor
 
@@ -676,3 +677,38 @@ def test_out_argument_takes_any_layout() -> None:
     np.testing.assert_array_equal(odd, expected)
     with pytest.raises(ValueError, match="out must be float32"):
         fhog(images, 4, out=np.zeros((2, 3, 6, 5, 31), np.float64))
+
+
+#: SHA-256 prefixes of fHOG on fixed synthetic batches, recorded with the implementation before
+#: issue 13's third round (commit a7e5abc). The kernels have been rewritten several times for
+#: speed, each time promising the same bits: this pins them (every path shares
+#: ``_combine_votes`` now, so comparing paths with each other would not catch a change there).
+GOLDEN_FHOG = [
+    ((64, 64, 3, 4, 2), "release", "d729762452029e4c"),
+    ((64, 64, 3, 4, 2), "exact", "a5d1cac017cd9d37"),
+    ((61, 47, 3, 4, 3), "release", "3bcb8fa7314b8811"),
+    ((61, 47, 3, 4, 3), "exact", "4d4acb438dcbbe49"),
+    ((40, 36, 1, 4, 1), "release", "e43f9e34a897b00f"),
+    ((40, 36, 1, 4, 1), "exact", "2f44fc6f686258fc"),
+    ((4, 19, 3, 4, 2), "release", "2af4549d159fff2d"),
+    ((4, 19, 3, 4, 2), "exact", "5359b6166a173991"),
+    ((19, 4, 3, 4, 1), "release", "55221b1d138174b6"),
+    ((19, 4, 3, 4, 1), "exact", "5379cb1abae8ab01"),
+    ((30, 30, 3, 2, 2), "release", "c74d106d3b2f5342"),
+    ((30, 30, 3, 2, 2), "exact", "fc30d086b497c243"),
+    ((27, 33, 3, 3, 1), "release", "2576f383bef98e0c"),
+    ((27, 33, 3, 3, 1), "exact", "84eb6bca7021b6d9"),
+    ((12, 12, 3, 1, 1), "release", "6e4d194ef42fb075"),
+    ((12, 12, 3, 1, 1), "exact", "533a681648386f3d"),
+]
+
+
+@pytest.mark.parametrize(("shape", "arithmetic", "digest"), GOLDEN_FHOG)
+def test_fhog_bits_are_pinned(shape: tuple[int, ...], arithmetic: str, digest: str) -> None:
+    h, w, c, cell, n = shape
+    rng = np.random.default_rng([2026, *shape])
+    yy, xx = np.mgrid[0:h, 0:w]
+    ramp = ((xx * 5 + yy * 3) % 200 + 20 * np.arange(c)[:, None, None]).transpose(1, 2, 0)
+    batch = np.clip(ramp + rng.integers(-30, 31, (n, h, w, c)), 0, 255).astype(np.uint8)
+    got = hashlib.sha256(fhog(batch, cell, arithmetic=arithmetic).tobytes()).hexdigest()[:16]
+    assert got == digest

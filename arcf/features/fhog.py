@@ -957,7 +957,7 @@ def _normalise(
 
 @kernel
 def _normalise_cells(r, n, eps, half_clip, texture, out):  # pragma: no cover - compiled
-    """``_normalise``'s kernel, cell by cell.
+    """``_normalise``'s kernel, plane by plane.
 
     R2 = R1[o] + R1[o + n]; each 2x2 block's energy is the float32 sum of its cells' squared
     R2 (summed in channel order, then the two rows, then the two columns); its halved
