@@ -303,13 +303,14 @@ class ARCFTracker:
         if p.round_translation:
             step_r, step_c = float(matlab_round(step_r)), float(matlab_round(step_c))
         self._pos = (sample_pos[0] + step_r, sample_pos[1] + step_c)
-        # What "shift" training reuses: this sample, and where the new position lies in it.
         if p.training_sample == "shift":
+            # what "shift" training reuses: this sample, and where the new position lies in it
             self._detection_maps = maps[sind]
-        self._detection_shift = (
-            (self._sample_pos()[0] - sample_pos[0]) / px_per_cell[0],
-            (self._sample_pos()[1] - sample_pos[1]) / px_per_cell[1],
-        )
+            new_pos = self._sample_pos()
+            self._detection_shift = (
+                (new_pos[0] - sample_pos[0]) / px_per_cell[0],
+                (new_pos[1] - sample_pos[1]) / px_per_cell[1],
+            )
         if self._scale_filter is not None:
             factor = self._scale_filter.estimate(image, self._pos, self._base_target_sz, self._csf)
         self._csf = float(np.clip(self._csf * factor, self._min_scale, self._max_scale))
