@@ -583,10 +583,25 @@ def test_fused_release_kernel_equals_the_separate_steps(
     else:
         images = np.full((n, h, w, c), 7, np.uint8)
         images[:, ::3] = 9
-    fused = fhog(images, cell, arithmetic="release")
+    fused = fhog(images, cell, arithmetic="release")  # uint8: pixels read from the tables
+    computed = fhog(images.astype(np.float32), cell, arithmetic="release")  # per pixel
     monkeypatch.setattr(fhog_module, "_FUSED_RELEASE", False)
     steps = fhog(images, cell, arithmetic="release")
     np.testing.assert_array_equal(fused.view(np.uint32), steps.view(np.uint32))
+    np.testing.assert_array_equal(computed.view(np.uint32), steps.view(np.uint32))
+
+
+def test_release_pixel_tables_cover_the_extreme_gradients() -> None:
+    """A uint8 image's doubled gradient reaches +-510 on its border (0 next to 255): the
+    tables must hold those pixels, with the bins and magnitudes the per-pixel path gives."""
+    images = np.zeros((2, 12, 12, 3), np.uint8)
+    images[0, :, 1::2] = 255  # vertical stripes: |gx| = 255 inside, 510 on the border
+    images[1, 1::2] = 255
+    images[1, :, :3] = 255 - images[1, :, :3]
+    fused = fhog(images, 4, arithmetic="release")
+    computed = fhog(images.astype(np.float64), 4, arithmetic="release")
+    np.testing.assert_array_equal(fused.view(np.uint32), computed.view(np.uint32))
+    assert np.abs(fused).max() > 0
 
 
 def _traced_fhog_pairs() -> list[tuple[str, np.ndarray, np.ndarray]]:
