@@ -373,6 +373,64 @@ def _gradient_row(planes, r, work, gx, gy, m2):  # pragma: no cover - compiled
                     m2[col] = mag[col]
 
 
+@kernel
+def _byte_planes(x, i, planes):  # pragma: no cover - compiled
+    """``_float_planes`` for the integer path: image ``i`` of ``x`` (N, H, W, C) uint8 as
+    uint8 channel planes ``(C, H, W)``, a quarter of the bytes."""
+    _, height, width, channels = x.shape
+    flat = x[i].reshape(height * width * channels)
+    out = planes.reshape(channels, height * width)
+    if channels == 3:
+        for p in range(height * width):
+            out[0, p] = flat[3 * p]
+            out[1, p] = flat[3 * p + 1]
+            out[2, p] = flat[3 * p + 2]
+    else:
+        for c in range(channels):
+            for p in range(height * width):
+                out[c, p] = flat[channels * p + c]
+
+
+@kernel
+def _gradient_index_row(planes, r, dx, dy, best, index):  # pragma: no cover - compiled
+    """Row ``r`` of ``_gradient_row`` on uint8 planes, in int32, as the index of the pixel's
+    doubled gradient in ``_release_pixel_tables``: ``(gy + 510) * 1021 + gx + 510``.
+
+    The same values as the float32 path (integers below 2^24 are exact in float32, so its
+    differences, doublings, ``fma`` and comparisons are exact too) and the same channel choice
+    (strictly larger ``m2`` wins). ``dx``, ``dy``, ``best`` (w0 int32 each) are scratch,
+    separate arrays so that LLVM knows they do not overlap and vectorises (rows of one 2-D
+    scratch array ran at half the speed).
+    """
+    channels, height, width = planes.shape
+    w0 = index.shape[0]
+    r_up, r_down = max(r - 1, 0), min(r + 1, height - 1)
+    shift = 1 if height > 1 and (r == 0 or r == height - 1) else 0  # doubled on the border
+    span, centre = _GRADIENT_SPAN, _MAX_GRADIENT * (_GRADIENT_SPAN + 1)
+    for c in range(channels):
+        u, m, d = planes[c, r_up], planes[c, r], planes[c, r_down]
+        for col in range(w0):
+            dy[col] = (np.int32(d[col]) - np.int32(u[col])) << shift
+        if width == 1:
+            dx[:] = 0
+        else:
+            for col in range(1, min(w0, width - 1)):
+                dx[col] = np.int32(m[col + 1]) - np.int32(m[col - 1])
+            dx[0] = (np.int32(m[1]) - np.int32(m[0])) * 2
+            if w0 == width:
+                dx[width - 1] = (np.int32(m[width - 1]) - np.int32(m[width - 2])) * 2
+        if c == 0:
+            for col in range(w0):
+                best[col] = dx[col] * dx[col] + dy[col] * dy[col]
+                index[col] = dy[col] * span + dx[col] + centre
+        else:
+            for col in range(w0):
+                m2 = dx[col] * dx[col] + dy[col] * dy[col]
+                better = m2 > best[col]
+                best[col] = m2 if better else best[col]
+                index[col] = dy[col] * span + dx[col] + centre if better else index[col]
+
+
 # --------------------------------------------------------------------------------------------
 # 2. Orientation binning and spatial voting
 # --------------------------------------------------------------------------------------------
@@ -925,15 +983,24 @@ def _release_votes(
     its layout read in the factored form of ``_voting_rows``), each with the same float32
     operations as the separate step it replaces; then ``_combine_votes``.
 
-    With ``bins`` and ``mags`` from ``_release_pixel_tables`` (uint8 images), each pixel's bin
-    and ``2 M`` are read from them instead of computed; ``plane`` is the accumulator's plane
-    size, which ``offsets`` (used otherwise) already includes.
+    With ``bins`` and ``mags`` from ``_release_pixel_tables`` (uint8 images), the gradient is
+    taken in integers (``_gradient_index_row``) and each pixel's bin and ``2 M`` are read from
+    the tables instead of computed; ``plane`` is the accumulator's plane size, which
+    ``offsets`` (used otherwise) already includes.
     """
     n_img, height, width, channels = x.shape
     w0 = wb * cell
     img_cells = (hb + 1) * (wb + 1)  # one image's padded plane
-    planes = np.empty((channels, height, width), np.float32)
+    tabulated = bins.size > 0
+    # the integer path reads uint8 planes, the per-pixel path float32 ones
+    byte_shape = (channels, height, width) if tabulated else (0, 0, 0)
+    float_shape = (0, 0, 0) if tabulated else (channels, height, width)
+    byte_planes = np.empty(byte_shape, np.uint8)
+    planes = np.empty(float_shape, np.float32)
     work = np.empty((3, w0), np.float32)
+    int_dx = np.empty(w0, np.int32)
+    int_dy = np.empty(w0, np.int32)
+    int_best = np.empty(w0, np.int32)
     gx = np.empty(w0, np.float32)
     gy = np.empty(w0, np.float32)
     m2 = np.empty(w0, np.float32)
@@ -943,8 +1010,6 @@ def _release_votes(
     mag = np.empty(w0, np.float32)
     start = np.empty(w0, np.int32)
     index = np.empty(w0, np.int32)
-    tabulated = bins.size > 0
-    span, span_half = _GRADIENT_SPAN, _MAX_GRADIENT
     left, right = acc[0], acc[1]
     left[:] = 0.0
     right[:] = 0.0
@@ -953,18 +1018,19 @@ def _release_votes(
     # One simple loop per step, which LLVM vectorises (measured: one loop doing all the steps
     # per pixel ran at half the speed).
     for i in range(n_img):
-        _float_planes(x, i, planes)
+        if tabulated:
+            _byte_planes(x, i, byte_planes)
+        else:
+            _float_planes(x, i, planes)
         for y in rows:
-            _gradient_row(planes, y, work, gx, gy, m2)
             if tabulated:
-                for col in range(w0):
-                    index[col] = (np.int32(gy[col]) + span_half) * span + (
-                        np.int32(gx[col]) + span_half)
+                _gradient_index_row(byte_planes, y, int_dx, int_dy, int_best, index)
                 for col in range(w0):
                     mag[col] = mags[index[col]]
                 for col in range(w0):
                     start[col] = np.int32(bins[index[col]]) * plane
             else:
+                _gradient_row(planes, y, work, gx, gy, m2)
                 for col in range(w0):
                     inv[col] = 1.0 / math.sqrt(np.float64(m2[col]))  # 0 -> inf, as the model
                 for col in range(w0):

@@ -206,6 +206,11 @@ def _opencv(image: np.ndarray, out_hw: tuple[int, int]) -> np.ndarray:
     return out[..., None] if out.ndim < image.ndim else out
 
 
+#: Destination columns (and channels) whose horizontal sums are computed before they are
+#: stored together; see ``_resize_area_u8``.
+_COLUMN_GROUP = 16
+
+
 @kernel
 def _resize_area_u8(
     columns, cn, ystart, yindex, yalpha, xstart, xindex, xalpha, out
@@ -215,27 +220,33 @@ def _resize_area_u8(
     First the horizontal sums of every source row (OpenCV's ``buf``), one destination column
     and channel at a time, vectorised over the rows; then each destination row is OpenCV's
     vertical sum of those rows, vectorised along the row, rounded half to even and saturated.
+
+    The horizontal sums of ``_COLUMN_GROUP`` destination columns are computed into a small
+    buffer and then stored into the row-major ``rows`` together, 64 contiguous bytes per source
+    row: stored one column at a time, each value touched its own cache line, which cost more
+    than the arithmetic (1100x1100 -> 200x200: 1.26 -> 0.69 ms). Two source columns are added
+    per pass (``(row + s1 a1) + s2 a2``, the same float32 operations in the same order), which
+    halves the passes over the partial sums (-> 0.63 ms).
     """
     oh, ow, _ = out.shape
     h = columns.shape[1]
     width = ow * cn
     rows = np.empty((h, width), np.float32)  # the horizontally reduced source rows
-    row = np.empty(h, np.float32)
-    for dx in range(ow):
-        for c in range(cn):
-            k0 = xstart[dx]
-            src = columns[xindex[k0] * cn + c]
-            a = xalpha[k0]
+    group = np.empty((_COLUMN_GROUP, h), np.float32)
+    for q0 in range(0, width, _COLUMN_GROUP):
+        n_group = min(_COLUMN_GROUP, width - q0)
+        for j in range(n_group):
+            dx, c = divmod(q0 + j, cn)
+            _horizontal_sum(columns, cn, c, xindex, xalpha, xstart[dx], xstart[dx + 1],
+                            group[j])
+        if n_group == _COLUMN_GROUP:  # a constant trip count: the stores vectorise
             for r in range(h):
-                row[r] = np.float32(src[r]) * a
-            for k in range(k0 + 1, xstart[dx + 1]):
-                src = columns[xindex[k] * cn + c]
-                a = xalpha[k]
-                for r in range(h):
-                    row[r] = row[r] + np.float32(src[r]) * a
-            q = dx * cn + c
+                for j in range(_COLUMN_GROUP):
+                    rows[r, q0 + j] = group[j, r]
+        else:
             for r in range(h):
-                rows[r, q] = row[r]
+                for j in range(n_group):
+                    rows[r, q0 + j] = group[j, r]
     acc = np.empty(width, np.float32)
     flat = out.reshape(oh, width)
     for dy in range(oh):
@@ -252,3 +263,36 @@ def _resize_area_u8(
         for q in range(width):
             v = np.rint(acc[q])
             flat[dy, q] = 0 if v < 0 else (255 if v > 255 else np.uint8(v))
+
+
+@kernel
+def _horizontal_sum(columns, cn, c, xindex, xalpha, k0, k1, row):  # pragma: no cover - compiled
+    """One destination column's sum for every source row: ``row[r] = sum_k src_k[r] alpha_k``
+    over table entries ``k0 .. k1 - 1``, as OpenCV sums it (first product, then each next one
+    added in order), two source columns per pass."""
+    h = row.shape[0]
+    src = columns[xindex[k0] * cn + c]
+    a = xalpha[k0]
+    k = k0 + 1
+    if k < k1:
+        s2 = columns[xindex[k] * cn + c]
+        a2 = xalpha[k]
+        for r in range(h):
+            row[r] = np.float32(src[r]) * a + np.float32(s2[r]) * a2
+        k += 1
+    else:
+        for r in range(h):
+            row[r] = np.float32(src[r]) * a
+    while k + 1 < k1:
+        s1 = columns[xindex[k] * cn + c]
+        a1 = xalpha[k]
+        s2 = columns[xindex[k + 1] * cn + c]
+        a2 = xalpha[k + 1]
+        for r in range(h):
+            row[r] = (row[r] + np.float32(s1[r]) * a1) + np.float32(s2[r]) * a2
+        k += 2
+    if k < k1:
+        s1 = columns[xindex[k] * cn + c]
+        a1 = xalpha[k]
+        for r in range(h):
+            row[r] = row[r] + np.float32(s1[r]) * a1
