@@ -727,3 +727,25 @@ def test_fhog_bits_are_pinned(shape: tuple[int, ...], arithmetic: str, digest: s
     batch = np.clip(ramp + rng.integers(-30, 31, (n, h, w, c)), 0, 255).astype(np.uint8)
     got = hashlib.sha256(fhog(batch, cell, arithmetic=arithmetic).tobytes()).hexdigest()[:16]
     assert got == digest
+
+
+@pytest.mark.parametrize("cell", [1, 2, 4])
+@pytest.mark.parametrize("arithmetic", ["exact", "release"])
+def test_window_is_the_product_afterwards_bit_for_bit(cell: int, arithmetic: str) -> None:
+    """``fhog(window=w)`` multiplies as it writes: exactly ``fhog() * w``, in float32, for a
+    channel-last result and for the trackers' channel-first views, batches included."""
+    rng = np.random.default_rng(cell)
+    images = rng.integers(0, 256, (3, 8 * cell + cell - 1, 6 * cell, 3), dtype=np.uint8)
+    window = rng.random((8, 6), dtype=np.float32)
+    plain = fhog(images, cell, arithmetic=arithmetic)
+    expected = (plain * window[:, :, None]).view(np.uint32)
+    assert not np.array_equal(expected, plain.view(np.uint32))
+    windowed = fhog(images, cell, arithmetic=arithmetic, window=window)
+    np.testing.assert_array_equal(windowed.view(np.uint32), expected)
+    first = np.empty((3, 31, 8, 6), np.float32)
+    fhog(images, cell, arithmetic=arithmetic, out=first.transpose(0, 2, 3, 1), window=window)
+    np.testing.assert_array_equal(first.transpose(0, 2, 3, 1).view(np.uint32), expected)
+    with pytest.raises(ValueError, match="window"):
+        fhog(images, cell, window=window[:-1])
+    with pytest.raises(ValueError, match="window"):
+        fhog(images, cell, window=window.astype(np.float64))

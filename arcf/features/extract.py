@@ -56,17 +56,25 @@ class FeatureExtractor:
         n, h, w = patches.shape[0], patches.shape[1] // self.cell, patches.shape[2] // self.cell
         out = np.empty((n, self.channels(color), h, w), np.float32)
         channels_last = out.transpose(0, 2, 3, 1)
+        # Without ECO's normalisation (which scales before the window), the window is applied
+        # as each block is written: fHOG multiplies its values on the way out (the same float32
+        # products), the other blocks their own channels; no pass over the whole block after.
+        block_window = None if self.normalize else window
         offset = 0
         for kind in self.active(color):
             block = channels_last[..., offset: offset + CHANNELS[kind]]
             if kind == "fhog":
-                fhog(patches, self.cell, arithmetic=self.fhog_arithmetic, out=block)
-            elif kind == "gray":
-                block[...] = gray_features(patches, self.cell)
-            elif kind == "cn":
-                self.prepare(color)
-                assert self._cn is not None
-                block[...] = self._cn(patches, self.cell)
+                fhog(patches, self.cell, arithmetic=self.fhog_arithmetic, out=block,
+                     window=block_window)
+            else:
+                if kind == "gray":
+                    block[...] = gray_features(patches, self.cell)
+                else:
+                    self.prepare(color)
+                    assert self._cn is not None
+                    block[...] = self._cn(patches, self.cell)
+                if block_window is not None:
+                    out[:, offset: offset + CHANNELS[kind]] *= block_window
             offset += CHANNELS[kind]
         if self.normalize:
             # ECO's normalisation: sum of squares = (H W) * D per sample, so the data term of the
@@ -76,6 +84,6 @@ class FeatureExtractor:
             out *= np.sqrt(h * w * d / (energy + np.finfo(np.float64).eps)).astype(np.float32)[
                 :, None, None, None
             ]
-        if window is not None:
+        if window is not None and block_window is None:
             out *= window
         return out

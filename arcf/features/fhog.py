@@ -72,6 +72,8 @@ _FUSED_RELEASE = True
 #: ``_chunk_size``.
 _CHUNK_BYTES = 3 << 20
 
+_NO_WINDOW = np.zeros((0, 0), np.float32)  # ``fhog(window=None)``
+
 
 def fhog_num_channels(n_orients: int = 9) -> int:
     """Number of output channels: ``2n`` sensitive + ``n`` insensitive + 4 texture (31 for n=9)."""
@@ -85,6 +87,7 @@ def fhog(
     clip: float = 0.2,
     arithmetic: Arithmetic = "exact",
     out: np.ndarray | None = None,
+    window: np.ndarray | None = None,
 ) -> np.ndarray:
     """Felzenszwalb HOG of one image or a batch of same-size images (Dollár toolbox semantics).
 
@@ -135,6 +138,9 @@ def fhog(
         out: where to write the result, a float32 array of the result's shape with any strides
             (e.g. a transposed view of a channel-first buffer, which is how the trackers get
             their feature maps without a copy); returned.
+        window: a float32 ``(H // cell_size, W // cell_size)`` map that multiplies every
+            channel as it is written (the trackers' cosine window): the same float32 product
+            as ``features * window`` afterwards, without another pass over the maps.
 
     Returns:
         float32 array ``(..., H // cell_size, W // cell_size, 3 * n_orients + 4)`` (31 channels for
@@ -187,6 +193,11 @@ def fhog(
         out = np.empty(shape, np.float32)
     elif out.shape != shape or out.dtype != np.float32:
         raise ValueError(f"fhog: out must be float32 {shape}, got {out.dtype} {out.shape}")
+    if window is None:
+        window = _NO_WINDOW
+    elif window.shape != (hb, wb) or window.dtype != np.float32:
+        raise ValueError(f"fhog: window must be float32 {(hb, wb)}, got {window.dtype} "
+                         f"{window.shape}")
     if hb == 0 or wb == 0 or x.size == 0:
         out.fill(0.0)
         return out
@@ -212,7 +223,8 @@ def fhog(
             gx, gy, mag2 = _dominant_gradient(chunk, hb * cell_size, wb * cell_size)
             _histogram(gx, gy, mag2, cell_size, n_orients, out=r1, release=release,
                        tables=tables)
-        _normalise(r, n_chunk, hb, wb, cell_size, n_orients, clip, out=out[i : i + n_chunk])
+        _normalise(r, n_chunk, hb, wb, cell_size, n_orients, clip, window,
+                   out=out[i : i + n_chunk])
     if not np.shares_memory(out, result):
         result[...] = out.reshape(shape)
     return result
@@ -1068,9 +1080,11 @@ def _normalise(
     cell: int,
     n_orients: int,
     clip: float,
+    window: np.ndarray,
     out: np.ndarray,
 ) -> None:
-    """Toolbox ``hogNormMatrix`` + ``hogChannels``: ``r`` ``(3n, N*hb*wb)`` -> ``out``.
+    """Toolbox ``hogNormMatrix`` + ``hogChannels``: ``r`` ``(3n, N*hb*wb)`` -> ``out``, times
+    ``window`` (``fhog``'s; empty: none).
 
     ``out`` is a ``(N, hb, wb, 3n + 4)`` float32 array (channels last), any strides.
 
@@ -1082,11 +1096,11 @@ def _normalise(
     half_clip = np.float32(0.5 * float(np.float32(clip)))
     texture = np.float32(2.0) * _TEXTURE_WEIGHT
     _normalise_cells(r.reshape(3 * n_orients, n_img, hb, wb), n_orients, eps, half_clip,
-                     texture, out)
+                     texture, np.ascontiguousarray(window).reshape(-1), out)
 
 
 @kernel
-def _normalise_cells(r, n, eps, half_clip, texture, out):  # pragma: no cover - compiled
+def _normalise_cells(r, n, eps, half_clip, texture, window, out):  # pragma: no cover - compiled
     """``_normalise``'s kernel, plane by plane.
 
     R2 = R1[o] + R1[o + n]; each 2x2 block's energy is the float32 sum of its cells' squared
@@ -1095,8 +1109,9 @@ def _normalise_cells(r, n, eps, half_clip, texture, out):  # pragma: no cover - 
     grid uses 1-wide "blocks"). Each output channel is ``sum_k min(R n_k, clip / 2)`` over the
     four blocks touching the cell, in the toolbox's order, and each texture channel ``k`` the
     sum over the 2n sensitive orientations of block ``k``'s truncated terms, times
-    ``2 * 0.2357``. Every float32 operation is the one the earlier NumPy/OpenCV version made,
-    in the same order, so the features are identical bit for bit.
+    ``2 * 0.2357``, then each value times ``window`` (flat ``hb * wb``; empty: none). Every
+    float32 operation is the one the earlier NumPy/OpenCV version made, in the same order, so
+    the features are identical bit for bit.
     """
     n_bins = 2 * n
     _, n_img, hb, wb = r.shape
@@ -1109,6 +1124,7 @@ def _normalise_cells(r, n, eps, half_clip, texture, out):  # pragma: no cover - 
     terms = np.empty((3 * n, hw), np.float32)
     tex = np.empty((4, hw), np.float32)
     hc = half_clip
+    windowed = window.size > 0
     for i in range(n_img):
         energy[:] = 0.0
         for o in range(n):
@@ -1151,10 +1167,24 @@ def _normalise_cells(r, n, eps, half_clip, texture, out):  # pragma: no cover - 
                     else:
                         for p in range(hw):
                             xk[p] = xk[p] + min(rp[p] * nk[p], hc)
+        if windowed:  # the same products as multiplying the maps afterwards
+            for k in range(4):
+                tk = tex[k]
+                for p in range(hw):
+                    tk[p] = tk[p] * texture * window[p]
+            for c in range(3 * n):
+                tc = terms[c]
+                for p in range(hw):
+                    tc[p] = tc[p] * window[p]
+        else:
+            for k in range(4):
+                tk = tex[k]
+                for p in range(hw):
+                    tk[p] = tk[p] * texture
         for k in range(4):
             for y in range(hb):
                 for x in range(wb):
-                    out[i, y, x, 3 * n + k] = tex[k, y * wb + x] * texture
+                    out[i, y, x, 3 * n + k] = tex[k, y * wb + x]
         if out.strides[3] > out.strides[2]:
             for c in range(3 * n):
                 for y in range(hb):
