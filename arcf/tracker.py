@@ -291,7 +291,7 @@ class ARCFTracker:
         if not self._hermitian:
             full_rf = rf
         elif p.spectra == "half":  # what the release's Newton reads: the correlation's spectrum
-            full_rf = full_spectrum(rf, self._use_sz[1])
+            full_rf = full_spectrum(rf, self._use_sz[1], np.complex128)  # Newton's precision
         else:  # bit for bit the earlier formulation (the release-compatible BACF)
             full_rf = sfft.fft2(response)
         disp_r, disp_c, sind, peak = newton_peak(response, full_rf, p.newton_iterations)

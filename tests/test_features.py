@@ -503,6 +503,23 @@ def test_newton_peak_finds_the_sub_cell_maximum(
     assert value >= m.max()  # never worse than the integer peak
 
 
+def test_newton_starts_from_matlabs_integer_peak() -> None:
+    """The compiled start search breaks ties (and NaNs) as ``first_argmax_colmajor``: the
+    first maximum in column-major order, as MATLAB's ``max`` then ``find`` do."""
+    from arcf.fourier import _integer_peaks, first_argmax_colmajor
+
+    rng = np.random.default_rng(21)
+    for trial in range(300):
+        maps = rng.integers(0, 3, (2, int(rng.integers(1, 7)), int(rng.integers(1, 7))))
+        maps = maps.astype(np.float32)
+        if trial % 4 == 0:
+            maps[rng.random(maps.shape) < 0.15] = np.nan
+        rows, cols, values = _integer_peaks(maps)
+        for i in range(2):
+            assert (rows[i], cols[i]) == first_argmax_colmajor(maps[i])
+            assert np.array_equal(values[i], maps[i, rows[i], cols[i]], equal_nan=True)
+
+
 def test_newton_peak_picks_the_best_map() -> None:
     shape = (40, 40)
     specs = [((2.3, 5.6), 0.5), ((-6.2, 1.4), 0.9), ((10.7, -3.3), 0.7)]
@@ -646,7 +663,19 @@ def test_peak_to_sidelobe() -> None:
     side = np.ones((20, 20), bool)
     side[np.ix_([17, 18, 19, 0, 1], [18, 19, 0, 1, 2])] = False
     expected = (1.0 - m[side].mean()) / m[side].std()
-    assert peak_to_sidelobe(m, 2) == pytest.approx(expected)
+    assert peak_to_sidelobe(m, 2) == pytest.approx(expected, rel=1e-12)
+    # float32 maps viewed out of a stack of scales, as the tracker passes them
+    stack = np.random.default_rng(12).random((3, 30, 26)).astype(np.float32)
+    stack[1, 4, 25] = 3.0
+    side = np.ones((30, 26), bool)
+    side[np.ix_(np.arange(1, 8), np.arange(22, 29) % 26)] = False
+    values = stack[1][side].astype(np.float64)
+    expected = (3.0 - values.mean()) / values.std()
+    assert peak_to_sidelobe(stack[1], 3) == pytest.approx(expected, rel=1e-12)
+    assert peak_to_sidelobe(stack[1], 13) != 0.0  # 27 of 30 rows excluded: 3 rows remain
+    assert peak_to_sidelobe(stack[1], 15) == 0.0  # a lobe wider than the map: no sidelobe
+    with pytest.raises(ValueError):
+        peak_to_sidelobe(stack, 2)
 
 
 def test_feature_normalisation_fixes_the_energy_per_element() -> None:
