@@ -87,14 +87,21 @@ def solve_filter(
     shape = crop.grid
     t = float(shape[0] * shape[1])
     x = model_xf
-    xc = np.conj(x)
-    s_xx = np.ascontiguousarray(np.einsum("dhw,dhw->hw", xc, x).real)  # Σ_d |x̂_d|², (H, W')
+    if x.dtype == np.complex64 and x.flags.c_contiguous:
+        xc = None  # only the NumPy g-step below reads it
+        s_xx = np.empty(x.shape[1:], np.float32)
+        _power_sum(x, s_xx)
+    else:
+        xc = np.conj(x)
+        s_xx = np.ascontiguousarray(np.einsum("dhw,dhw->hw", xc, x).real)  # Σ_d |x̂_d|², (H, W')
     y_tilde = yf if target_f is None or gamma == 0 else yf + gamma * np.conj(target_f)
     x_y = x * y_tilde  # x̂ ỹ, (D, H, W')
     sxx_y = s_xx * y_tilde
     # The compiled g-step (NumPy's arithmetic, bit for bit) takes the usual complex64 arrays.
     fused = x.dtype == x_y.dtype == sxx_y.dtype == np.complex64 and all(
         a.flags.c_contiguous for a in (x, x_y, sxx_y, s_xx))
+    if not fused and xc is None:
+        xc = np.conj(x)
     g_f = np.empty_like(x) if fused else np.zeros_like(x)  # the g-step writes all of it
     h_f = np.zeros_like(x)
     l_f = np.zeros_like(x)
@@ -227,6 +234,24 @@ def _g_step(
             gi = gi - fma32(ar, ci[k], ai * cr[k])
             gs[d, k] = complex(gr, gi)
             ws[d, k] = complex(mu * gr + ls[d, k].real, mu * gi + ls[d, k].imag)
+
+
+@kernel
+def _power_sum(x, out):  # pragma: no cover - compiled
+    """``out = Σ_d |x̂_d|²`` over the channels of a complex64 ``(D, H, W')`` block, as
+    ``np.einsum("dhw,dhw->hw", conj(x), x).real`` computes it: each product's real part
+    ``xr xr - (-xi) xi`` in float32, summed over the channels in order from 0 (the same bits,
+    checked in tests/test_admm.py; a tenth of einsum's time)."""
+    n_d = x.shape[0]
+    n_k = x.shape[1] * x.shape[2]
+    xs = x.reshape(n_d, n_k)
+    acc = out.reshape(n_k)
+    acc[:] = 0.0
+    for d in range(n_d):
+        for k in range(n_k):
+            xr = xs[d, k].real
+            xi = xs[d, k].imag
+            acc[k] = acc[k] + (xr * xr - (-xi) * xi)
 
 
 @kernel
