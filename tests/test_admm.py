@@ -264,3 +264,36 @@ def test_power_sum_is_einsums_real_part_bit_for_bit(d, h, w):
     out = np.full((h, w), np.nan, np.float32)
     _power_sum(x, out)
     np.testing.assert_array_equal(out.view(np.uint32), expected.view(np.uint32))
+
+
+@pytest.mark.parametrize("shape", [(50, 50), (50, 49), (7, 8), (1, 1)])
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_symmetric_half_of_a_real_map_is_the_numpy_formula_bit_for_bit(shape, dtype):
+    """The compiled path for real maps (the release's target) gives what the general
+    formula gives, ``0.5 (T(n) + conj(T(-n)))`` on the kept half, to the bit and in the same
+    precision."""
+    t = (np.random.default_rng(3).standard_normal(shape) * 1e3).astype(dtype)
+    h, w = shape
+    mirrored = np.conj(t[np.ix_(-np.arange(h) % h, -np.arange(w // 2 + 1) % w)])
+    expected = 0.5 * (t[:, : w // 2 + 1] + mirrored)
+    got = symmetric_half(t)
+    assert got.dtype == expected.dtype == dtype
+    np.testing.assert_array_equal(got.view(np.uint8), expected.view(np.uint8))
+
+
+@pytest.mark.parametrize("shape", [(5, 50, 50), (50, 49), (2, 7, 8), (1, 1, 1)])
+def test_full_spectrum_is_a_copy_and_a_mirrored_conjugate_bit_for_bit(shape):
+    """The compiled completion, into complex64 or straight into complex128 (Newton's input),
+    holds exactly the input's values and their mirrored conjugates."""
+    x = np.random.default_rng(4).standard_normal(shape).astype(np.float32)
+    half = np.fft.rfft2(x).astype(np.complex64)
+    h, w = shape[-2:]
+    cols = np.arange(w // 2 + 1, w)
+    expected = np.empty((*half.shape[:-1], w), np.complex64)
+    expected[..., : w // 2 + 1] = half
+    expected[..., w // 2 + 1:] = np.conj(half[..., -np.arange(h) % h, :][..., w - cols])
+    for dtype in (None, np.complex128):
+        got = full_spectrum(half, w, dtype)
+        assert got.dtype == (dtype or np.complex64)
+        np.testing.assert_array_equal(got.view(np.uint8),
+                                      expected.astype(got.dtype).view(np.uint8))
