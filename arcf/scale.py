@@ -9,7 +9,7 @@ import scipy.fft as sfft
 
 from .features.fhog import Arithmetic as FhogArithmetic
 from .features.fhog import fhog
-from .features.patches import as_rgb, pyramid_windows, release_windows
+from .features.patches import pyramid_windows, release_windows
 from .presets import ScaleFilterParams
 
 
@@ -89,8 +89,8 @@ class DSSTScaleFilter:
             patches = pyramid_windows(image, pos, sizes, self.model_sz)
         else:
             patches = release_windows(image, pos, sizes, self.model_sz)
-        patches = as_rgb(patches)  # frames are BGR, the release's windows RGB
-        feats = fhog(patches, 4, arithmetic=self.fhog_arithmetic)  # (S, h, w, 31)
+        # frames are BGR, the release's windows RGB: fHOG reads them so
+        feats = fhog(patches, 4, arithmetic=self.fhog_arithmetic, bgr=True)  # (S, h, w, 31)
         # column-major (MATLAB's temp(:)) order of each scale's (h, w, 31) block
         xs = feats.transpose(0, 3, 2, 1).reshape(len(patches), -1).T.astype(np.float64)
         return xs * self.window[None, :]

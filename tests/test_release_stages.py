@@ -146,7 +146,8 @@ def test_working_sizes(run: Run) -> None:
 @pytest.mark.parametrize(("run", "frame", "stage"), STAGES, ids=STAGE_IDS)
 def test_patches(run: Run, frame: int, stage: str) -> None:
     """The windows, cut around the rounded position with border replication and resized by the
-    release's rule, equal the release's bit for bit (every search scale of ARCF-H)."""
+    release's rule, equal the release's bit for bit (every search scale of ARCF-H); ours keep
+    the frame's BGR order, the release's are RGB."""
     need_traces()
     tracker = configured(run)
     t = trace(run, frame)
@@ -157,7 +158,7 @@ def test_patches(run: Run, frame: int, stage: str) -> None:
         assert pos == tuple(t[f"{stage}_sample_pos"].ravel())
     factors = tracker._scale_factors if stage == "det" else [1.0]
     ours = tracker._patches(image, pos, factors)
-    np.testing.assert_array_equal(ours, images(t[f"{stage}_patch_resized"]))
+    np.testing.assert_array_equal(ours[..., ::-1], images(t[f"{stage}_patch_resized"]))
 
 
 # ------------------------------------------------------------------------------ features

@@ -453,24 +453,29 @@ def test_colour_and_gray_frames_may_be_mixed_after_init() -> None:
         assert math.isfinite(t2.update(f).peak)
 
 
-def test_colour_frames_are_converted_from_bgr_to_rgb() -> None:
+@pytest.mark.parametrize("preset", ["arcf-h", "arcf-hc"])
+def test_colour_frames_are_read_as_rgb(preset: str) -> None:
     """Frames arrive in OpenCV's BGR order; the features see RGB, as the release reads images
-    (fHOG's channel ties go to R, the Color Names index is R + 32 G + 1024 B)."""
+    (fHOG's channel ties go to R, the Color Names index is R + 32 G + 1024 B): the features
+    of the tracker's BGR windows are, bit for bit, those of the RGB frame's windows."""
     frames, gt = scene(n=3)
-    t = make("arcf-h")
+    t = make(preset)
     _, color = t._frame_for_init(frames[0])
     assert color
     t.init(frames[0], gt[0])
-    # the windows the features see are those of the frame converted to RGB, pixel for pixel
-    from arcf.features.patches import matlab_round, pyramid_windows
-
     pos, factors = t._sample_pos(), t._scale_factors
-    sides = [matlab_round(t._sample_sz * t._csf * f) for f in factors]
     rgb = np.ascontiguousarray(frames[1][..., ::-1])
-    direct = pyramid_windows(rgb, pos, [(s, s) for s in sides], (t._sample_sz, t._sample_sz))
-    np.testing.assert_array_equal(t._patches(frames[1], pos, factors), direct)
-    assert not np.array_equal(direct, direct[..., ::-1])  # the test scene is not grey
-    # a gray stream converts later colour frames with the BGR weights
+    bgr_windows = t._patches(frames[1], pos, factors)
+    rgb_windows = t._patches(rgb, pos, factors)
+    np.testing.assert_array_equal(bgr_windows, rgb_windows[..., ::-1])  # windows stay BGR
+    assert not np.array_equal(rgb_windows, bgr_windows)  # the test scene is not grey
+    got = t._extractor(bgr_windows, True, t._window, bgr=True)
+    expected = t._extractor(rgb_windows, True, t._window)
+    np.testing.assert_array_equal(got.view(np.uint32), expected.view(np.uint32))
+    assert not np.array_equal(t._extractor(bgr_windows, True, t._window), expected)
+
+def test_a_grey_stream_converts_later_colour_frames_with_the_bgr_weights() -> None:
+    frames, gt = scene(n=3)
     g = make("arcf-h")
     g.init(gray(frames)[0], gt[0])
     np.testing.assert_array_equal(g._frame_for_update(frames[1])[..., 0], gray(frames)[1])

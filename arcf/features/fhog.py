@@ -88,6 +88,7 @@ def fhog(
     arithmetic: Arithmetic = "exact",
     out: np.ndarray | None = None,
     window: np.ndarray | None = None,
+    bgr: bool = False,
 ) -> np.ndarray:
     """Felzenszwalb HOG of one image or a batch of same-size images (Dollár toolbox semantics).
 
@@ -141,6 +142,8 @@ def fhog(
         window: a float32 ``(H // cell_size, W // cell_size)`` map that multiplies every
             channel as it is written (the trackers' cosine window): the same float32 product
             as ``features * window`` afterwards, without another pass over the maps.
+        bgr: the colour images' channels are in OpenCV's BGR order: they are read as RGB
+            (which decides the first-channel tie rule above), without converting them first.
 
     Returns:
         float32 array ``(..., H // cell_size, W // cell_size, 3 * n_orients + 4)`` (31 channels for
@@ -204,6 +207,11 @@ def fhog(
 
     n_img = math.prod(lead)
     x = x.reshape(n_img, height, width, channels)
+    fused = arithmetic == "release" and cell_size > 1 and _FUSED_RELEASE
+    # the tabulated kernel reads BGR pixels in RGB order itself; elsewhere a reversed view
+    reverse = bgr and channels == 3
+    if reverse and not (fused and x.dtype == np.uint8):
+        x, reverse = x[..., ::-1], False
     result = out
     out = out.view()
     try:
@@ -217,8 +225,8 @@ def fhog(
         # R1 and (filled later) R2, orientation-major: (3n, N * hb * wb).
         r = _scratch("r", (3 * n_orients, n_chunk * hb * wb), np.float32)
         r1 = r[: 2 * n_orients].reshape(2 * n_orients, n_chunk, hb, wb)
-        if arithmetic == "release" and cell_size > 1 and _FUSED_RELEASE:
-            _release_histogram(chunk, cell_size, n_orients, out=r1)
+        if fused:
+            _release_histogram(chunk, cell_size, n_orients, out=r1, reverse=reverse)
         else:
             gx, gy, mag2 = _dominant_gradient(chunk, hb * cell_size, wb * cell_size)
             _histogram(gx, gy, mag2, cell_size, n_orients, out=r1, release=release,
@@ -386,17 +394,19 @@ def _gradient_row(planes, r, work, gx, gy, m2):  # pragma: no cover - compiled
 
 
 @kernel
-def _byte_planes(x, i, planes):  # pragma: no cover - compiled
+def _byte_planes(x, i, reverse, planes):  # pragma: no cover - compiled
     """``_float_planes`` for the integer path: image ``i`` of ``x`` (N, H, W, C) uint8 as
-    uint8 channel planes ``(C, H, W)``, a quarter of the bytes."""
+    uint8 channel planes ``(C, H, W)``, a quarter of the bytes; with ``reverse``, a colour
+    image's channels last to first (BGR pixels as RGB planes)."""
     _, height, width, channels = x.shape
     flat = x[i].reshape(height * width * channels)
     out = planes.reshape(channels, height * width)
+    first, last = (2, 0) if reverse else (0, 2)
     if channels == 3:
         for p in range(height * width):
-            out[0, p] = flat[3 * p]
+            out[first, p] = flat[3 * p]
             out[1, p] = flat[3 * p + 1]
-            out[2, p] = flat[3 * p + 2]
+            out[last, p] = flat[3 * p + 2]
     else:
         for c in range(channels):
             for p in range(height * width):
@@ -882,10 +892,13 @@ def _combine_votes(left, right, wb, out):  # pragma: no cover - compiled
                     row[wb - 1] = row[wb - 1] * s
 
 
-def _release_histogram(x: np.ndarray, cell: int, n_orients: int, out: np.ndarray) -> None:
+def _release_histogram(
+    x: np.ndarray, cell: int, n_orients: int, out: np.ndarray, reverse: bool = False
+) -> None:
     """``_dominant_gradient`` + ``_histogram(release=True)`` with the modelled SSE arithmetic,
     fused into one pass over the pixels (``_release_votes``): the same bits, without the
-    seven full-size intermediates that the separate steps write and read back.
+    seven full-size intermediates that the separate steps write and read back. ``reverse``
+    (uint8 colour images only): read the channels last to first (BGR as RGB).
     """
     n_img, hb, wb = out.shape[1:]
     plane = n_img * (hb + 1) * (wb + 1)
@@ -898,10 +911,12 @@ def _release_histogram(x: np.ndarray, cell: int, n_orients: int, out: np.ndarray
         bins, mags = _release_pixel_tables(n_orients)
     else:  # gradients are not small integers: the kernel computes each pixel's arithmetic
         bins, mags = _NO_BINS, _NO_MAGS
+        if reverse:
+            raise ValueError("_release_histogram: reverse is for uint8 images")
     # the kernel also applies _rescale_border
     _release_votes(np.ascontiguousarray(x), _band_order(hb, cell), row_base, col0, w_top,
                    w_bottom, _release_plane_offsets(n_orients, plane), bins, mags, plane, hb,
-                   wb, cell, acc, out)
+                   wb, cell, reverse, acc, out)
 
 
 #: The largest doubled gradient component of a uint8 image: ``2 (255 - 0)`` on the border
@@ -986,7 +1001,8 @@ def _band_order(hb: int, cell: int) -> np.ndarray:
 
 @kernel
 def _release_votes(
-    x, rows, row_base, col0, w_top, w_bottom, offsets, bins, mags, plane, hb, wb, cell, acc, out
+    x, rows, row_base, col0, w_top, w_bottom, offsets, bins, mags, plane, hb, wb, cell, reverse,
+    acc, out
 ):  # pragma: no cover - compiled
     """Per pixel row (in ``_band_order``): the dominant gradient (``_gradient_row``), the
     modelled ``rsqrt`` (``_release_rsqrt``: float64 ``1 / sqrt``, rounded to 13 bits, capped),
@@ -1031,7 +1047,7 @@ def _release_votes(
     # per pixel ran at half the speed).
     for i in range(n_img):
         if tabulated:
-            _byte_planes(x, i, byte_planes)
+            _byte_planes(x, i, reverse, byte_planes)
         else:
             _float_planes(x, i, planes)
         for y in rows:
