@@ -108,7 +108,7 @@ def instrument() -> StageTimer:
     for owner in (tracker, scale):
         timer.wrap(owner, "release_windows", "sampling", windows)
         timer.wrap(owner, "pyramid_windows", "sampling", windows)
-        timer.wrap(owner, "as_rgb", "sampling")
+    # windows stay BGR: ARCF-HC's pixel features convert their copy inside the extractor
     timer.wrap(extract.FeatureExtractor, "__call__", "features",
                lambda a, k, r: features(a[1:], k, r))
     timer.wrap(scale, "fhog", "features", features)
