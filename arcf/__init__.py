@@ -1,5 +1,5 @@
-"""arcf: the ARCF visual trackers (Li et al., "Learning Aberrance Repressed Correlation Filters
-for Real-Time UAV Tracking", ICCV 2019) in NumPy/OpenCV.
+"""arcf: the ARCF visual trackers (Huang, Fu, Li, Lin and Lu, "Learning Aberrance Repressed
+Correlation Filters for Real-Time UAV Tracking", ICCV 2019) in NumPy/OpenCV.
 
 >>> import arcf
 >>> tracker = arcf.create_tracker("arcf-hc")           # or "arcf-h", "bacf"; overrides by keyword

@@ -1,6 +1,6 @@
 """Typed, immutable parameter sets of the three trackers of the paper.
 
-Every value says where it comes from: "paper" (Li et al., ICCV 2019, Section 6.1 / Table 1),
+Every value says where it comes from: "paper" (Huang et al., ICCV 2019, Section 6.1 / Table 1),
 "release" (the authors' public MATLAB code, as recorded in ``docs/arcf-reference.md`` of the shared
 folder) or "BACF" / "DSST" when the release inherits it unchanged from those trackers. Where the
 release departs from the paper, the preset follows the release (that is what produced the
@@ -72,6 +72,7 @@ class TrackerParams:
     #: Appearance-model learning rate eta. release ARCF-H: 0.019 (paper: 0.0192); ARCF-HC 0.0192.
     learning_rate: float
     #: "search": ARCF-H's joint search over ``n_scales`` scales; "filter": ARCF-HC's DSST filter.
+    #: Independent of ``sizing``: either scale strategy works with either family's sizing.
     scale_mode: ScaleMode
     #: Newton iterations of the sub-cell peak search. release: 50 (ARCF-H), 5 (ARCF-HC).
     newton_iterations: int

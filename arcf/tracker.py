@@ -85,13 +85,141 @@ class TrackResult:
         return self.peak
 
 
+@dataclass(frozen=True, eq=False)
+class Layout:
+    """What ``init`` fixes for the whole sequence: the working resolution, the feature grid and
+    everything derived from them. Sizes are (rows, cols).
+
+    The tracker works on windows resampled to a *working resolution*; its *scale factor* is the
+    number of source pixels per working pixel (the release's ``currentScaleFactor``, ``csf``).
+    """
+
+    #: The frame's (rows, cols); every later frame must have it.
+    image_hw: tuple[int, int]
+    #: Colour frames (Color Names are used) or grey ones.
+    color: bool
+    #: Side of a feature cell, working pixels (4; smaller for tiny ARCF-H targets).
+    cell: int
+    #: Side of the square search window, working pixels (the release's ``sz`` / ``img_support_sz``).
+    sample_sz: int
+    #: (H, W): the feature grid, cells (the release's ``use_sz``).
+    grid: tuple[int, int]
+    #: The target at scale factor 1, working pixels (the release's ``base_target_sz``).
+    target_size: tuple[float, float]
+    #: The scale factor at the first frame; results report ``scale`` relative to it.
+    initial_scale: float
+    #: Working pixels per cell along each axis (``sample_sz / grid``).
+    cell_px: tuple[float, float]
+    #: σ of the Gaussian label y, cells.
+    sigma: float
+    #: The window of BACF's cropping matrix B, cells (the release's ``small_filter_sz``).
+    filter_size: tuple[int, int]
+    #: Main-lobe half-width excluded from the peak-to-sidelobe ratio, cells.
+    psr_radius: int
+    #: Relative scales searched jointly each frame (ARCF-H: 5 around 1; [1] with DSST).
+    scale_factors: np.ndarray
+    #: The scale factor's clamp.
+    min_scale: float
+    max_scale: float
+    #: (H, W) float32 cosine window; ŷ, the label's spectrum; B.
+    window: np.ndarray
+    yf: np.ndarray
+    crop: Crop
+    extractor: FeatureExtractor
+
+
+@dataclass(eq=False)
+class FrameState:
+    """What changes from frame to frame (a failed ``init`` keeps the previous one)."""
+
+    #: Target centre (row, col), in the datasets' 1-based pixel frame.
+    pos: tuple[float, float]
+    #: Source pixels per working pixel.
+    scale_factor: float
+    #: x̂ᵐᵒᵈᵉˡ, the running appearance model, (D, H, W') spectra.
+    model_xf: np.ndarray
+    #: ĝ, the correlation filter, (D, H, W') spectra.
+    g_f: np.ndarray
+    #: M_{k-1}, the previous response map (fftshifted, peak near the centre), and its peak.
+    m_prev: np.ndarray
+    p_prev: tuple[int, int]
+    frame_index: int
+    #: ARCF-HC's DSST scale filter, with its own running model; None with the joint search.
+    scale_filter: DSSTScaleFilter | None
+    #: ``training_sample="shift"`` only: the chosen scale's detection maps and where the new
+    #: position lies in them, cells.
+    detection_maps: np.ndarray | None = None
+    detection_shift: tuple[float, float] = (0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class _Sizing:
+    """A sizing rule's answer: where the target is and at which resolution it is worked on."""
+
+    pos: tuple[float, float]
+    cell: int
+    sample_sz: int
+    target_size: tuple[float, float]
+    scale_factor: float
+
+
+def _bacf_sizing(p: TrackerParams, x: float, y: float, w: float, h: float) -> _Sizing:
+    """ARCF-H / BACF (``sizing="filter_max_area"``): a square grid of at most
+    ``filter_max_area`` cells over ``search_area_scale`` times the target's area (release)."""
+    init_sz = np.array([max(math.floor(h), 1), max(math.floor(w), 1)], dtype=np.float64)
+    pos = (float(math.floor(y + math.floor(h / 2))), float(math.floor(x + math.floor(w / 2))))
+    cell = p.cell_size
+    search_area = float(np.prod(init_sz / cell * p.search_area_scale))
+    if search_area < p.cell_selection_thresh * p.filter_max_area:
+        # tiny targets: a smaller cell keeps enough cells in the grid (release, from BACF)
+        need = np.prod(init_sz * p.search_area_scale) / (
+            p.cell_selection_thresh * p.filter_max_area
+        )
+        cell = min(cell, max(1, math.ceil(math.sqrt(need))))
+        search_area = float(np.prod(init_sz / cell * p.search_area_scale))
+    scale = math.sqrt(search_area / p.filter_max_area) if search_area > p.filter_max_area else 1.0
+    base = init_sz / scale
+    side = math.sqrt(float(np.prod(base * p.search_area_scale)))
+    sz = max(matlab_round(side / cell) * cell, 2 * cell)
+    return _Sizing(pos, cell, sz, (float(base[0]), float(base[1])), scale)
+
+
+def _eco_sizing(p: TrackerParams, x: float, y: float, w: float, h: float) -> _Sizing:
+    """ARCF-HC (``sizing="sample_area"``): the search region rescaled to a pixel area in
+    [150², 200²] (ECO / STRCF, release)."""
+    target = np.array([h, w], dtype=np.float64)
+    pos = (y + (h - 1) / 2, x + (w - 1) / 2)
+    search_area = float(np.prod(target * p.search_area_scale))
+    if search_area > p.max_image_sample_size:
+        scale = math.sqrt(search_area / p.max_image_sample_size)
+    elif search_area < p.min_image_sample_size:
+        scale = math.sqrt(search_area / p.min_image_sample_size)
+    else:
+        scale = 1.0
+    base = target / scale
+    cell = p.cell_size
+    side = math.sqrt(float(np.prod(base * p.search_area_scale)))
+    support = max(matlab_round(side / cell) * cell, 2 * cell)
+    return _Sizing(pos, cell, support, (float(base[0]), float(base[1])), scale)
+
+
+_SIZINGS = {"filter_max_area": _bacf_sizing, "sample_area": _eco_sizing}
+
+
 class ARCFTracker:
-    """ARCF-H, ARCF-HC or BACF, depending on its :class:`~arcf.presets.TrackerParams`."""
+    """ARCF-H, ARCF-HC or BACF, depending on its :class:`~arcf.presets.TrackerParams`.
+
+    Two families share the loop: BACF-style sizing with a joint search over a few scales
+    (ARCF-H, BACF) and ECO-style sizing with a DSST scale filter (ARCF-HC); ``sizing`` and
+    ``scale_mode`` choose each part. ``layout`` holds what ``init`` fixes for the sequence,
+    ``state`` what each frame changes.
+    """
 
     def __init__(self, params: TrackerParams, colornames_path: str | Path | None = None) -> None:
         self.params = params
         self._colornames_path = str(colornames_path) if colornames_path is not None else None
-        self._initialized = False
+        self._layout: Layout | None = None
+        self._state: FrameState | None = None
         #: Paper formulation (or γ = 0, or the release's target made conjugate symmetric):
         #: filters are real in space, half spectra suffice.
         self._hermitian = (
@@ -108,259 +236,246 @@ class ARCFTracker:
     # ------------------------------------------------------------------ public API
     @property
     def initialized(self) -> bool:
-        return self._initialized
+        return self._state is not None
+
+    @property
+    def layout(self) -> Layout:
+        if self._layout is None:
+            raise NotInitializedError("call init(frame, box) first")
+        return self._layout
+
+    @property
+    def state(self) -> FrameState:
+        if self._state is None:
+            raise NotInitializedError("call init(frame, box) first")
+        return self._state
 
     def init(self, frame: np.ndarray, box: Box | Any) -> TrackResult:
         """Start (or restart) tracking ``box`` in ``frame``; returns the first frame's result.
 
         A failed (re-)initialisation leaves the tracker exactly as it was, so a bad request on a
-        live stream does not break the target already being tracked.
+        live stream does not break the target already being tracked: the new layout and state
+        replace the old ones only once the first frame has been learnt.
         """
-        snapshot = dict(self.__dict__)
-        try:
-            return self._init(frame, box)
-        except BaseException:
-            self.__dict__.clear()
-            self.__dict__.update(snapshot)
-            raise
-
-    def _init(self, frame: np.ndarray, box: Box | Any) -> TrackResult:
         image, color = self._frame_for_init(frame)
         x, y, w, h = validate_box(box, image.shape[:2])
-        self._color = color
-        self._image_hw = image.shape[:2]
-        if self.params.sizing == "filter_max_area":
-            self._configure_bacf(x, y, w, h)
-        else:
-            self._configure_eco(x, y, w, h)
-        self._extractor = FeatureExtractor(
-            self.params.features,
-            self._cell,
-            self._colornames_path,
-            self.params.normalize_features,
-            self._fhog_arithmetic,
+        layout, sizing, scale_filter = self._make_layout(image.shape[:2], color, (x, y, w, h))
+        state = FrameState(
+            pos=sizing.pos, scale_factor=sizing.scale_factor,
+            model_xf=np.empty(0, np.complex64), g_f=np.empty(0, np.complex64),
+            m_prev=np.empty((0, 0), np.float32), p_prev=(0, 0), frame_index=0,
+            scale_filter=scale_filter,
         )
-        self._extractor.prepare(color)
-        self._window = hann2d(self._use_sz)
-        self._yf = self._fwd(gaussian_label(self._use_sz, self._sigma))
-        self._crop = Crop(self._use_sz, self._small_filter_sz)
-        self._frame_index = 0
-
-        xf = self._training_sample(image)
-        self._model_xf = xf
-        self._g_f = self._solve(None)
-        first = spatial_response(
-            correlate(self._g_f, self._model_xf[None])[0], self._use_sz, self._hermitian
-        )
-        self._m_prev = sfft.fftshift(first)
-        self._p_prev = peak_index(self._m_prev)
-        if self._scale_filter is not None:
-            self._scale_filter.update(image, self._pos, self._base_target_sz, self._csf, True)
-        self._initialized = True
+        # learn the first frame on the new layout and state, then adopt both
+        previous = self._layout, self._state
+        self._layout, self._state = layout, state
+        try:
+            state.model_xf = self._training_sample(image)
+            state.g_f = self._solve(None)
+            first = spatial_response(
+                correlate(state.g_f, state.model_xf[None])[0], layout.grid, self._hermitian
+            )
+            state.m_prev = sfft.fftshift(first)
+            state.p_prev = peak_index(state.m_prev)
+            if scale_filter is not None:
+                scale_filter.update(image, state.pos, layout.target_size, state.scale_factor,
+                                    True)
+        except BaseException:
+            self._layout, self._state = previous
+            raise
         return TrackResult(
             box=self._box(),
             peak=float(first.max()),
-            psr=peak_to_sidelobe(first, self._psr_radius),
+            psr=peak_to_sidelobe(first, layout.psr_radius),
             aberrance=0.0,
             aberrance_release=0.0,
-            scale=self._csf / self._csf0,
+            scale=1.0,
             frame_index=0,
         )
 
     def update(self, frame: np.ndarray) -> TrackResult:
-        """Track into the next frame."""
-        if not self._initialized:
+        """Track into the next frame: detect, measure the aberrance, train."""
+        if self._state is None:
             raise NotInitializedError("call init(frame, box) before update(frame)")
+        state, layout = self.state, self.layout
         image = self._frame_for_update(frame)
-        self._frame_index += 1
+        state.frame_index += 1
         response, peak = self._detect(image)
         frob, spectral, target_f = self._aberrance(response)
-        if self.params.training_sample == "shift":
-            sample = self._shifted_sample()
-        else:
-            sample = self._training_sample(image)
-        # x̂ <- (1 - η) x̂ + η x̂_t, in place: the same products and sum, no new model array
-        sample *= self.params.learning_rate
-        self._model_xf *= 1 - self.params.learning_rate
-        self._model_xf += sample
-        self._g_f = self._solve(target_f)
-        if self._scale_filter is not None:
-            self._scale_filter.update(image, self._pos, self._base_target_sz, self._csf, False)
+        self._train(image, target_f)
         return TrackResult(
             box=self._box(),
             peak=peak,
-            psr=peak_to_sidelobe(response, self._psr_radius),
+            psr=peak_to_sidelobe(response, layout.psr_radius),
             aberrance=frob,
             aberrance_release=spectral,
-            scale=self._csf / self._csf0,
-            frame_index=self._frame_index,
+            scale=state.scale_factor / layout.initial_scale,
+            frame_index=state.frame_index,
         )
 
     # ------------------------------------------------------------------ configuration
-    def _configure_bacf(self, x: float, y: float, w: float, h: float) -> None:
-        """ARCF-H / BACF sizing: feature grid of at most ``filter_max_area`` cells."""
+    def _make_layout(
+        self, image_hw: tuple[int, int], color: bool, box: Box
+    ) -> tuple[Layout, _Sizing, DSSTScaleFilter | None]:
+        """The sequence's layout from the first box, by the preset's sizing and scale rules."""
         p = self.params
-        init_sz = np.array([max(math.floor(h), 1), max(math.floor(w), 1)], dtype=np.float64)
-        self._pos = (
-            float(math.floor(y + math.floor(h / 2))),
-            float(math.floor(x + math.floor(w / 2))),
-        )
-        cell = p.cell_size
-        search_area = float(np.prod(init_sz / cell * p.search_area_scale))
-        if search_area < p.cell_selection_thresh * p.filter_max_area:
-            # tiny targets: a smaller cell keeps enough cells in the grid (release, from BACF)
-            need = np.prod(init_sz * p.search_area_scale) / (
-                p.cell_selection_thresh * p.filter_max_area
+        x, y, w, h = box
+        sizing = _SIZINGS[p.sizing](p, x, y, w, h)
+        cell, sz = sizing.cell, sizing.sample_sz
+        grid = (sz // cell, sz // cell)
+        cells = np.floor(np.asarray(sizing.target_size) / cell)
+        sigma = math.sqrt(max(float(np.prod(cells)), 1.0)) * p.output_sigma_factor
+        if p.scale_mode == "search":  # joint search over n_scales scales (ARCF-H, BACF)
+            factors, step, scale_filter = search_scale_factors(p.n_scales, p.scale_step), \
+                p.scale_step, None
+        else:  # DSST's separate 1-D scale filter (ARCF-HC)
+            factors, step = np.ones(1), p.scale_filter.scale_step
+            scale_filter = DSSTScaleFilter(
+                p.scale_filter, (float(h), float(w)), self._fhog_arithmetic, p.sampling
             )
-            cell = min(cell, max(1, math.ceil(math.sqrt(need))))
-            search_area = float(np.prod(init_sz / cell * p.search_area_scale))
-        csf = math.sqrt(search_area / p.filter_max_area) if search_area > p.filter_max_area else 1.0
-        base = init_sz / csf
-        side = math.sqrt(float(np.prod(base * p.search_area_scale)))
-        sz = matlab_round(side / cell) * cell
-        sz = max(sz, 2 * cell)
-        self._cell = cell
-        self._sample_sz = sz  # pixels at the working resolution (square)
-        self._use_sz = (sz // cell, sz // cell)
-        self._finish_configuration(base, csf, (float(sz), float(sz)))
-        self._scale_factors = search_scale_factors(p.n_scales, p.scale_step)
-        self._scale_filter = None
-        self._min_scale, self._max_scale = scale_limits(
-            p.scale_step, (sz, sz), self._base_target_sz, self._image_hw
+        min_scale, max_scale = scale_limits(step, (sz, sz), sizing.target_size, image_hw)
+        extractor = FeatureExtractor(
+            p.features, cell, self._colornames_path, p.normalize_features,
+            self._fhog_arithmetic,
         )
-
-    def _configure_eco(self, x: float, y: float, w: float, h: float) -> None:
-        """ARCF-HC sizing: search region rescaled to a pixel area in [150², 200²] (ECO/STRCF)."""
-        p = self.params
-        target = np.array([h, w], dtype=np.float64)
-        self._pos = (y + (h - 1) / 2, x + (w - 1) / 2)
-        search_area = float(np.prod(target * p.search_area_scale))
-        if search_area > p.max_image_sample_size:
-            csf = math.sqrt(search_area / p.max_image_sample_size)
-        elif search_area < p.min_image_sample_size:
-            csf = math.sqrt(search_area / p.min_image_sample_size)
-        else:
-            csf = 1.0
-        base = target / csf
-        self._cell = cell = p.cell_size
-        side = math.sqrt(float(np.prod(base * p.search_area_scale)))
-        support = max(matlab_round(side / cell) * cell, 2 * cell)
-        self._sample_sz = support
-        self._use_sz = (support // self._cell, support // self._cell)
-        self._finish_configuration(base, csf, (float(support), float(support)))
-        self._scale_factors = np.ones(1)
-        sf = p.scale_filter
-        self._scale_filter = DSSTScaleFilter(
-            sf, (float(h), float(w)), self._fhog_arithmetic, p.sampling
+        extractor.prepare(color)
+        layout = Layout(
+            image_hw=image_hw,
+            color=color,
+            cell=cell,
+            sample_sz=sz,
+            grid=grid,
+            target_size=sizing.target_size,
+            initial_scale=sizing.scale_factor,
+            cell_px=(sz / grid[0], sz / grid[1]),
+            sigma=sigma,
+            filter_size=(int(np.clip(cells[0], 1, grid[0])), int(np.clip(cells[1], 1, grid[1]))),
+            psr_radius=max(2, math.ceil(3 * sigma)),
+            scale_factors=factors,
+            min_scale=min_scale,
+            max_scale=max_scale,
+            window=hann2d(grid),
+            yf=self._fwd(gaussian_label(grid, sigma)),
+            crop=Crop(grid, (int(np.clip(cells[0], 1, grid[0])),
+                             int(np.clip(cells[1], 1, grid[1])))),
+            extractor=extractor,
         )
-        self._min_scale, self._max_scale = scale_limits(
-            sf.scale_step, (support, support), self._base_target_sz, self._image_hw
-        )
-
-    def _finish_configuration(
-        self, base: np.ndarray, csf: float, sample_px: tuple[float, float]
-    ) -> None:
-        cell = self._cell
-        self._csf = self._csf0 = csf
-        self._base_target_sz = (float(base[0]), float(base[1]))
-        cells = np.floor(base / cell)
-        self._sigma = math.sqrt(max(float(np.prod(cells)), 1.0)) * self.params.output_sigma_factor
-        self._small_filter_sz = (
-            int(np.clip(cells[0], 1, self._use_sz[0])),
-            int(np.clip(cells[1], 1, self._use_sz[1])),
-        )
-        self._cell_px = (sample_px[0] / self._use_sz[0], sample_px[1] / self._use_sz[1])
-        self._psr_radius = max(2, math.ceil(3 * self._sigma))
+        return layout, sizing, scale_filter
 
     # ------------------------------------------------------------------ the three steps
     def _detect(self, image: np.ndarray) -> tuple[np.ndarray, float]:
         """Step 1: locate the target; updates position and scale. Returns (map, peak value)."""
-        p = self.params
+        p, layout, state = self.params, self.layout, self.state
         sample_pos = self._sample_pos()
-        patches = self._patches(image, sample_pos, self._scale_factors)
+        patches = self._patches(image, sample_pos, layout.scale_factors)
         if p.training_sample == "shift":
-            maps = self._extractor(patches, self._color, bgr=True)  # unwindowed, for training
-            xtf = self._fwd(maps * self._window)  # (S, D, H, W')
+            maps = layout.extractor(patches, layout.color, bgr=True)  # unwindowed, for training
+            xtf = self._fwd(maps * layout.window)  # (S, D, H, W')
         else:
-            xtf = self._fwd(self._extractor(patches, self._color, self._window, bgr=True))
-        rf = correlate(self._g_f, xtf)  # (S, H, W')
+            xtf = self._fwd(layout.extractor(patches, layout.color, layout.window, bgr=True))
+        rf = correlate(state.g_f, xtf)  # (S, H, W')
         if rf.shape[0] == 1:
-            response = spatial_response(rf[0], self._use_sz, self._hermitian)[None]
+            response = spatial_response(rf[0], layout.grid, self._hermitian)[None]
         else:
-            response = spatial_response(rf, self._use_sz, self._hermitian)
+            response = spatial_response(rf, layout.grid, self._hermitian)
         if not self._hermitian:
             full_rf = rf
         elif p.spectra == "half":  # what the release's Newton reads: the correlation's spectrum
-            full_rf = full_spectrum(rf, self._use_sz[1], np.complex128)  # Newton's precision
+            full_rf = full_spectrum(rf, layout.grid[1], np.complex128)  # Newton's precision
         else:  # bit for bit the earlier formulation (the release-compatible BACF)
             full_rf = sfft.fft2(response)
         disp_r, disp_c, sind, peak = newton_peak(response, full_rf, p.newton_iterations)
 
-        factor = float(self._scale_factors[sind])
-        px_per_cell = (self._cell_px[0] * self._csf * factor, self._cell_px[1] * self._csf * factor)
+        factor = float(layout.scale_factors[sind])
+        px_per_cell = (layout.cell_px[0] * state.scale_factor * factor,
+                       layout.cell_px[1] * state.scale_factor * factor)
         step_r = disp_r * px_per_cell[0]
         step_c = disp_c * px_per_cell[1]
         if p.round_translation:
             step_r, step_c = float(matlab_round(step_r)), float(matlab_round(step_c))
-        self._pos = (sample_pos[0] + step_r, sample_pos[1] + step_c)
+        state.pos = (sample_pos[0] + step_r, sample_pos[1] + step_c)
         if p.training_sample == "shift":
             # what "shift" training reuses: this sample, and where the new position lies in it
-            self._detection_maps = maps[sind]
+            state.detection_maps = maps[sind]
             new_pos = self._sample_pos()
-            self._detection_shift = (
+            state.detection_shift = (
                 (new_pos[0] - sample_pos[0]) / px_per_cell[0],
                 (new_pos[1] - sample_pos[1]) / px_per_cell[1],
             )
-        if self._scale_filter is not None:
-            factor = self._scale_filter.estimate(image, self._pos, self._base_target_sz, self._csf)
-        self._csf = float(np.clip(self._csf * factor, self._min_scale, self._max_scale))
+        if state.scale_filter is not None:
+            factor = state.scale_filter.estimate(image, state.pos, layout.target_size,
+                                                 state.scale_factor)
+        state.scale_factor = float(np.clip(state.scale_factor * factor, layout.min_scale,
+                                           layout.max_scale))
         return response[sind], peak
 
     def _aberrance(
         self, response: np.ndarray
     ) -> tuple[float, float, np.ndarray | None]:
         """Step 2: map difference (Eq. 2) and the aberrance target of the next ADMM solve."""
+        state = self.state
         m_curr = sfft.fftshift(response)
         p_curr = peak_index(m_curr)
-        m_prev_shifted = shift_to(self._m_prev, self._p_prev, p_curr)
+        m_prev_shifted = shift_to(state.m_prev, state.p_prev, p_curr)
         frob, spectral = map_difference(m_prev_shifted, m_curr)
         target_f: np.ndarray | None = None
         if self.params.gamma:
             if self.params.aberrance == "paper":
-                target_f = self._fwd(paper_target(self._m_prev, self._p_prev).astype(np.float32))
+                target_f = self._fwd(
+                    paper_target(state.m_prev, state.p_prev).astype(np.float32))
             elif self._hermitian:
                 target_f = symmetric_half(release_target(m_prev_shifted)).astype(np.complex64)
             else:
                 target_f = release_target(m_prev_shifted).astype(np.complex64)
-        self._m_prev, self._p_prev = m_curr, p_curr
+        state.m_prev, state.p_prev = m_curr, p_curr
         return frob, spectral, target_f
+
+    def _train(self, image: np.ndarray, target_f: np.ndarray | None) -> None:
+        """Step 3: the new sample into the running model, the filter from it, the scale
+        filter's model."""
+        p, state = self.params, self.state
+        if p.training_sample == "shift":
+            sample = self._shifted_sample()
+        else:
+            sample = self._training_sample(image)
+        # x̂ <- (1 - η) x̂ + η x̂_t, in place: the same products and sum, no new model array
+        sample *= p.learning_rate
+        state.model_xf *= 1 - p.learning_rate
+        state.model_xf += sample
+        state.g_f = self._solve(target_f)
+        if state.scale_filter is not None:
+            state.scale_filter.update(image, state.pos, self.layout.target_size,
+                                      state.scale_factor, False)
 
     def _training_sample(self, image: np.ndarray) -> np.ndarray:
         """Step 3a: windowed features at the new position and scale, in the Fourier domain."""
+        layout = self.layout
         patch = self._patches(image, self._sample_pos(), (1.0,))
-        return self._fwd(self._extractor(patch, self._color, self._window, bgr=True)[0])
+        return self._fwd(layout.extractor(patch, layout.color, layout.window, bgr=True)[0])
 
     def _shifted_sample(self) -> np.ndarray:
         """Step 3a with ``training_sample="shift"``: the detection sample of the chosen scale
         moved onto the new position, by whole cells in space (so that the cosine window stays
         centred) and by the remaining fraction of a cell in the Fourier domain."""
-        dr, dc = self._detection_shift
+        state, layout = self.state, self.layout
+        assert state.detection_maps is not None
+        dr, dc = state.detection_shift
         whole = (int(np.round(dr)), int(np.round(dc)))
-        maps = np.roll(self._detection_maps, (-whole[0], -whole[1]), axis=(-2, -1))
-        xf = self._fwd(maps * self._window)
-        return shift_spectrum(xf, (dr - whole[0], dc - whole[1]), self._use_sz)
+        maps = np.roll(state.detection_maps, (-whole[0], -whole[1]), axis=(-2, -1))
+        xf = self._fwd(maps * layout.window)
+        return shift_spectrum(xf, (dr - whole[0], dc - whole[1]), layout.grid)
 
     def _solve(self, target_f: np.ndarray | None) -> np.ndarray:
         """Step 3b: the filter ĝ from the running model by ADMM."""
-        p = self.params
+        p, layout = self.params, self.layout
         g_f, _ = solve_filter(
-            self._model_xf,
-            self._yf,
+            self.state.model_xf,
+            layout.yf,
             target_f,
             gamma=p.gamma,
             admm_lambda=p.admm_lambda,
             iterations=p.admm_iterations,
-            crop=self._crop,
+            crop=layout.crop,
             hermitian=self._hermitian,
             mu_init=p.mu_init,
             mu_scale_step=p.mu_scale_step,
@@ -371,7 +486,8 @@ class ARCFTracker:
     # ------------------------------------------------------------------ helpers
     def _sample_pos(self) -> tuple[float, float]:
         """Where windows are cut: the position rounded to a pixel (ARCF-H's already is)."""
-        return float(matlab_round(self._pos[0])), float(matlab_round(self._pos[1]))
+        pos = self.state.pos
+        return float(matlab_round(pos[0])), float(matlab_round(pos[1]))
 
     def _patches(
         self, image: np.ndarray, pos: tuple[float, float], factors: Any
@@ -379,11 +495,12 @@ class ARCFTracker:
         """The search windows at relative scales ``factors``, resized to the working size.
 
         (N, S, S, C) uint8 in the frame's BGR order (the feature extractor reads them as the
-        release's RGB), S = ``self._sample_sz``; each window's side is ``round(S * csf *
-        factor)`` source pixels (release: ``get_pixels``).
+        release's RGB), S = ``layout.sample_sz``; each window's side is ``round(S * scale
+        factor * factor)`` source pixels (release: ``get_pixels``).
         """
-        sides = [matlab_round(self._sample_sz * self._csf * f) for f in factors]
-        out_hw = (self._sample_sz, self._sample_sz)
+        sz, scale = self.layout.sample_sz, self.state.scale_factor
+        sides = [matlab_round(sz * scale * f) for f in factors]
+        out_hw = (sz, sz)
         if self.params.sampling == "pyramid":
             return pyramid_windows(image, pos, [(s, s) for s in sides], out_hw)
         return release_windows(image, pos, [(s, s) for s in sides], out_hw)
@@ -392,9 +509,10 @@ class ARCFTracker:
         return sfft.rfft2(maps) if self._hermitian else sfft.fft2(maps)
 
     def _box(self) -> Box:
-        th = self._base_target_sz[0] * self._csf
-        tw = self._base_target_sz[1] * self._csf
-        r, c = self._pos
+        layout, state = self.layout, self.state
+        th = layout.target_size[0] * state.scale_factor
+        tw = layout.target_size[1] * state.scale_factor
+        r, c = state.pos
         if self.params.whole_pixel_boxes:
             x, y = c - (tw - 1) / 2, r - (th - 1) / 2
             return (
@@ -430,15 +548,16 @@ class ARCFTracker:
 
     def _frame_for_update(self, frame: np.ndarray) -> np.ndarray:
         validate_frame(frame)
-        if frame.shape[:2] != self._image_hw:
+        layout = self.layout
+        if frame.shape[:2] != layout.image_hw:
             raise InvalidFrameError(
-                f"frame size changed from {self._image_hw[1]}x{self._image_hw[0]} to "
+                f"frame size changed from {layout.image_hw[1]}x{layout.image_hw[0]} to "
                 f"{frame.shape[1]}x{frame.shape[0]}; call init() again for a new stream"
             )
         image = frame if frame.ndim == 3 else frame[..., None]
-        if self._color and image.shape[2] == 1:
+        if layout.color and image.shape[2] == 1:
             return np.repeat(image, 3, axis=2)
-        if not self._color and image.shape[2] == 3:
+        if not layout.color and image.shape[2] == 3:
             return cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)[..., None]
         return image
 

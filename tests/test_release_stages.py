@@ -104,8 +104,8 @@ def configured(run: Run) -> ARCFTracker:
 
 def at_state(tracker: ARCFTracker, t: dict[str, np.ndarray], stage: str) -> None:
     """Put the tracker where the release was when the stage began (position and scale)."""
-    tracker._pos = tuple(float(v) for v in t[f"{stage}_pos_in"].ravel())
-    tracker._csf = float(t[f"{stage}_csf_in"].ravel()[0])
+    tracker.state.pos = tuple(float(v) for v in t[f"{stage}_pos_in"].ravel())
+    tracker.state.scale_factor = float(t[f"{stage}_csf_in"].ravel()[0])
 
 
 def blocks(a: np.ndarray) -> np.ndarray:
@@ -138,9 +138,10 @@ def test_working_sizes(run: Run) -> None:
     need_traces()
     tracker = configured(run)
     t = trace(run, 1)
-    assert tracker._use_sz == t["train_feat"].shape[:2]
-    assert (tracker._sample_sz,) * 2 == t["train_patch_resized"].shape[:2]
-    assert tracker._csf == pytest.approx(float(t["train_csf_in"].ravel()[0]), rel=1e-12)
+    assert tracker.layout.grid == t["train_feat"].shape[:2]
+    assert (tracker.layout.sample_sz,) * 2 == t["train_patch_resized"].shape[:2]
+    csf = float(t["train_csf_in"].ravel()[0])  # the release's currentScaleFactor
+    assert tracker.state.scale_factor == pytest.approx(csf, rel=1e-12)
 
 
 @pytest.mark.parametrize(("run", "frame", "stage"), STAGES, ids=STAGE_IDS)
@@ -156,7 +157,7 @@ def test_patches(run: Run, frame: int, stage: str) -> None:
     pos = tracker._sample_pos()
     if f"{stage}_sample_pos" in t:
         assert pos == tuple(t[f"{stage}_sample_pos"].ravel())
-    factors = tracker._scale_factors if stage == "det" else [1.0]
+    factors = tracker.layout.scale_factors if stage == "det" else [1.0]
     ours = tracker._patches(image, pos, factors)
     np.testing.assert_array_equal(ours[..., ::-1], images(t[f"{stage}_patch_resized"]))
 
@@ -176,7 +177,7 @@ def test_feature_blocks(run: Run, frame: int, stage: str) -> None:
     tracker = configured(run)
     t = trace(run, frame)
     patches = images(t[f"{stage}_patch_resized"])
-    ours = tracker._extractor(patches, True)
+    ours = tracker.layout.extractor(patches, True)
     feat = blocks(t[f"{stage}_feat"])
     assert ours.shape == feat.shape
     if run.preset == "arcf-hc":
@@ -196,7 +197,7 @@ def test_windowed_spectra_and_model(run: Run) -> None:
     tracker = configured(run)
     t1, t2 = trace(run, 1), trace(run, 2)
     for t in (t1, t2):
-        xf = tracker._fwd(blocks(t["train_feat"]) * tracker._window)
+        xf = tracker._fwd(blocks(t["train_feat"]) * tracker.layout.window)
         assert_rel(xf[0], blocks(t["train_xf"])[0], 1e-6, "xf")
     eta = tracker.params.learning_rate
     model = (1 - eta) * blocks(t1["train_model_xf"])[0] + eta * blocks(t2["train_xf"])[0]
@@ -237,9 +238,9 @@ def test_filter_after_admm(run: Run, frame: int) -> None:
     target = None if frame == 1 else release_target(t["train_M_target"].astype(np.float64))
     p = tracker.params
     g_f, _ = solve_filter(
-        blocks(t["train_model_xf"])[0].astype(np.complex128), tracker._yf, target,
+        blocks(t["train_model_xf"])[0].astype(np.complex128), tracker.layout.yf, target,
         gamma=p.gamma, admm_lambda=p.admm_lambda, iterations=p.admm_iterations,
-        crop=tracker._crop, hermitian=False,
+        crop=tracker.layout.crop, hermitian=False,
     )
     assert_rel(g_f, blocks(t["train_g_f"])[0], 2e-6, "g_f")
 
@@ -253,9 +254,9 @@ def test_filter_differs_without_the_release_target_scale() -> None:
     t = trace(run, 2)
     p = tracker.params
     g_f, _ = solve_filter(
-        blocks(t["train_model_xf"])[0].astype(np.complex128), tracker._yf,
+        blocks(t["train_model_xf"])[0].astype(np.complex128), tracker.layout.yf,
         t["train_M_target"].astype(np.float64), gamma=p.gamma, admm_lambda=p.admm_lambda,
-        iterations=p.admm_iterations, crop=tracker._crop, hermitian=False,
+        iterations=p.admm_iterations, crop=tracker.layout.crop, hermitian=False,
     )
     ref = blocks(t["train_g_f"])[0]
     assert np.abs(g_f - ref).max() / np.abs(ref).max() > 0.1
@@ -276,11 +277,11 @@ def test_responses_and_newton(run: Run, frame: int) -> None:
     t, prev = trace(run, frame), trace(run, frame - 1) if frame - 1 in run.frames else None
     ref_rf = maps(t["det_responsef"])
     if prev is not None:  # the filter of the previous frame on this frame's features
-        xtf = tracker._fwd(blocks(t["det_feat"]) * tracker._window)
+        xtf = tracker._fwd(blocks(t["det_feat"]) * tracker.layout.window)
         rf = np.sum(np.conj(blocks(prev["train_g_f"])[0])[None] * xtf, axis=1)
         assert_rel(rf, ref_rf, 2e-6, "responsef")
-    response = spatial_response(ref_rf[0], tracker._use_sz, False)[None] if len(ref_rf) == 1 \
-        else spatial_response(ref_rf, tracker._use_sz, False)
+    response = spatial_response(ref_rf[0], tracker.layout.grid, False)[None] if len(ref_rf) == 1 \
+        else spatial_response(ref_rf, tracker.layout.grid, False)
     assert_rel(response, maps(t["det_response"]), 2e-6, "response")
     disp_r, disp_c, sind, peak = newton_peak(
         maps(t["det_response"]), ref_rf, tracker.params.newton_iterations)
@@ -300,16 +301,16 @@ def test_scale_filter(run: Run) -> None:
     MATLAB's column-major order), the new numerator/denominator, and the response in frame 2."""
     need_traces()
     tracker = configured(run)
-    sf = tracker._scale_filter
+    sf = tracker.state.scale_filter
     assert sf is not None
     t1, t2 = trace(run, 1), trace(run, 2)
     pf = per_frame(run.trace)
     xs1 = sf._sample(bgr_frame(run.dataset, run.sequence, 0),
-                     tuple(t1["train_pos_in"].ravel()), tracker._base_target_sz,
+                     tuple(t1["train_pos_in"].ravel()), tracker.layout.target_size,
                      float(t1["train_csf_in"].ravel()[0]))
     assert xs1.shape == t1["train_scale_xs"].shape
     xs2 = sf._sample(bgr_frame(run.dataset, run.sequence, 1), tuple(pf["pos_translated"][1]),
-                     tracker._base_target_sz, float(t2["det_csf_in"].ravel()[0]))
+                     tracker.layout.target_size, float(t2["det_csf_in"].ravel()[0]))
     for ours, ref in ((xs1, t1["train_scale_xs"]), (xs2, t2["det_scale_xs"])):
         # The scale samples are fHOG of tiny patches (32x15 px on boat1, 8x3 cells): a single
         # pixel in the neighbouring orientation bin (the AMD rounding we cannot know, see
@@ -428,14 +429,14 @@ def test_release_trajectory(case: Trajectory, monkeypatch: pytest.MonkeyPatch) -
     last = case.first_divergence or len(seq) + 1
     for f in range(1, last - 1):
         tracker.update(seq.read_frame(f))
-        np.testing.assert_allclose(tracker._pos, pf["pos"][f], atol=atol,
+        np.testing.assert_allclose(tracker.state.pos, pf["pos"][f], atol=atol,
                                    err_msg=f"position at frame {f + 1}")
-        assert tracker._csf == pytest.approx(float(pf["csf"][f, 0]), rel=1e-6), f + 1
+        assert tracker.state.scale_factor == pytest.approx(float(pf["csf"][f, 0]), rel=1e-6), f + 1
     if case.first_divergence is None:
         return
     tracker.update(seq.read_frame(last - 1))
-    differs = (np.abs(np.array(tracker._pos) - pf["pos"][last - 1]).max() > atol
-               or abs(tracker._csf / float(pf["csf"][last - 1, 0]) - 1) > 1e-6)
+    differs = (np.abs(np.array(tracker.state.pos) - pf["pos"][last - 1]).max() > atol
+               or abs(tracker.state.scale_factor / float(pf["csf"][last - 1, 0]) - 1) > 1e-6)
     assert differs, f"frame {last} now matches the release: update the case"
     if case.chaotic:
         outcomes = _newton_outcomes(seen["response"], seen["spectrum"],

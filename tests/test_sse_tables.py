@@ -136,8 +136,8 @@ def test_tracker_replays_the_tables(dumped: Path) -> None:
     tracker = arcf.create_tracker("arcf-hc", fhog_sse_table=str(dumped))
     frame = np.random.default_rng(1).integers(0, 256, (120, 160, 3), dtype=np.uint8)
     tracker.init(frame, (50, 40, 30, 24))
-    assert tracker._extractor.fhog_arithmetic is load_sse_tables(dumped)
-    assert tracker._scale_filter.fhog_arithmetic is load_sse_tables(dumped)
+    assert tracker.layout.extractor.fhog_arithmetic is load_sse_tables(dumped)
+    assert tracker.state.scale_filter.fhog_arithmetic is load_sse_tables(dumped)
     tracker.update(frame)
 
 

@@ -201,6 +201,24 @@ def test_scale_estimates_change_monotonically_with_a_growing_target() -> None:
     assert scales[-1] > scales[10] > 1.0
 
 
+@pytest.mark.parametrize(("preset", "scale_mode"), [("arcf-h", "filter"), ("arcf-hc", "search")])
+def test_scale_mode_chooses_the_scale_strategy_whatever_the_sizing(
+    preset: str, scale_mode: str
+) -> None:
+    """``scale_mode`` is read: the joint search and the DSST filter each work with either
+    family's sizing, and the swapped trackers still follow a growing target's size."""
+    t = make(preset, scale_mode=scale_mode)
+    frames, gt = scene(**dict(GROWING))
+    results = run(t, frames, gt[0])
+    if scale_mode == "filter":
+        assert t.state.scale_filter is not None
+        np.testing.assert_array_equal(t.layout.scale_factors, [1.0])
+    else:
+        assert t.state.scale_filter is None and len(t.layout.scale_factors) == 5
+    assert centre_errors(results, gt).max() < 5.0
+    assert results[-1].scale > 1.1, results[-1].scale
+
+
 # --------------------------------------------------------------------------- result fields
 
 
@@ -376,12 +394,12 @@ def test_shifted_sample_is_the_extracted_one_moved(preset: str) -> None:
         return float(np.linalg.norm(tracker._shifted_sample() - extracted)
                      / np.linalg.norm(extracted))
 
-    dr, dc = tracker._detection_shift
+    dr, dc = tracker.state.detection_shift
     assert abs(dr) + abs(dc) > 0.3  # cells
     right = error()
-    tracker._detection_shift = (-dr, -dc)
+    tracker.state.detection_shift = (-dr, -dc)
     flipped = error()
-    tracker._detection_shift = (0.0, 0.0)
+    tracker.state.detection_shift = (0.0, 0.0)
     unmoved = error()
     assert right < 0.5 * min(flipped, unmoved), (right, flipped, unmoved)
 
@@ -463,16 +481,16 @@ def test_colour_frames_are_read_as_rgb(preset: str) -> None:
     _, color = t._frame_for_init(frames[0])
     assert color
     t.init(frames[0], gt[0])
-    pos, factors = t._sample_pos(), t._scale_factors
+    pos, factors = t._sample_pos(), t.layout.scale_factors
     rgb = np.ascontiguousarray(frames[1][..., ::-1])
     bgr_windows = t._patches(frames[1], pos, factors)
     rgb_windows = t._patches(rgb, pos, factors)
     np.testing.assert_array_equal(bgr_windows, rgb_windows[..., ::-1])  # windows stay BGR
     assert not np.array_equal(rgb_windows, bgr_windows)  # the test scene is not grey
-    got = t._extractor(bgr_windows, True, t._window, bgr=True)
-    expected = t._extractor(rgb_windows, True, t._window)
+    got = t.layout.extractor(bgr_windows, True, t.layout.window, bgr=True)
+    expected = t.layout.extractor(rgb_windows, True, t.layout.window)
     np.testing.assert_array_equal(got.view(np.uint32), expected.view(np.uint32))
-    assert not np.array_equal(t._extractor(bgr_windows, True, t._window), expected)
+    assert not np.array_equal(t.layout.extractor(bgr_windows, True, t.layout.window), expected)
 
 def test_a_grey_stream_converts_later_colour_frames_with_the_bgr_weights() -> None:
     frames, gt = scene(n=3)
@@ -659,6 +677,29 @@ def test_bad_reinit_leaves_the_state_intact(preset: str) -> None:
     with pytest.raises(InvalidFrameError):
         t.init(frames[2].astype(np.float32), gt[2])
     assert t.initialized
+    got += [t.update(f) for f in frames[2:]]
+    assert got == reference
+
+
+def test_reinit_failing_while_learning_the_first_frame_keeps_the_old_target(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The new layout and state are adopted only once the first frame is learnt: an error
+    inside the solve (here injected) leaves the old layout, state and track untouched."""
+    frames, gt = scene(n=5)
+    reference = run(make("arcf-h"), frames, gt[0])
+    t = make("arcf-h")
+    got = [t.init(frames[0], gt[0]), t.update(frames[1])]
+    layout, state = t.layout, t.state
+
+    def broken(*args: Any, **kwargs: Any) -> Any:
+        raise MemoryError("injected")
+
+    monkeypatch.setattr(arcf.tracker, "solve_filter", broken)
+    with pytest.raises(MemoryError):
+        t.init(frames[2], (150.0, 60.0, 50.0, 40.0))
+    monkeypatch.undo()
+    assert t.layout is layout and t.state is state
     got += [t.update(f) for f in frames[2:]]
     assert got == reference
 
