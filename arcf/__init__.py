@@ -6,6 +6,8 @@ Correlation Filters for Real-Time UAV Tracking", ICCV 2019) in NumPy/OpenCV.
 >>> tracker.init(frame, (x, y, w, h))                  # doctest: +SKIP
 >>> result = tracker.update(next_frame)                # doctest: +SKIP
 >>> result.box, result.peak, result.psr, result.aberrance  # doctest: +SKIP
+>>> for step in arcf.track_frames(tracker, frames, box):  # doctest: +SKIP
+...     print(step.result.box, step.seconds)             # the one loop, timed per frame
 """
 
 from .errors import (
@@ -26,6 +28,7 @@ from .presets import (
     TrackerParams,
     make_params,
 )
+from .run import SequenceRun, Step, run_sequence, track_frames
 from .tracker import ARCFTracker, TrackResult, create_tracker
 from .warmup import warm_up
 
@@ -44,10 +47,14 @@ __all__ = [
     "InvalidFrameError",
     "NotInitializedError",
     "ScaleFilterParams",
+    "SequenceRun",
+    "Step",
     "TrackResult",
     "TrackerParams",
     "UnknownPresetError",
     "create_tracker",
     "make_params",
+    "run_sequence",
+    "track_frames",
     "warm_up",
 ]

@@ -11,7 +11,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import time
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
@@ -23,6 +22,7 @@ from .errors import ARCFError
 from .eval.datasets import DatasetError
 from .eval.datasets import list_frames as dataset_frames
 from .presets import PRESETS
+from .run import track_frames
 from .tracker import create_tracker
 
 
@@ -108,11 +108,9 @@ def cmd_track(args: argparse.Namespace) -> int:
     total = 0.0
     n = 0
     try:
-        for i, frame in enumerate(read_frames(paths)):
+        for i, (frame, result, seconds) in enumerate(
+                track_frames(tracker, read_frames(paths), box)):
             path = paths[i]
-            t0 = time.perf_counter()
-            result = tracker.init(frame, box) if i == 0 else tracker.update(frame)
-            seconds = time.perf_counter() - t0
             total += seconds
             n += 1
             x, y, w, h = result.box

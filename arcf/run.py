@@ -1,10 +1,12 @@
-"""Run a tracker over a sequence of frames: the one-pass loop shared by the CLI and benchmarks."""
+"""Run a tracker over a sequence of frames: the one loop shared by the CLI, the evaluation runner,
+the load tools and the benchmarks."""
 
 from __future__ import annotations
 
 import time
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
@@ -28,10 +30,23 @@ class SequenceRun:
         return len(self.times) / total if total > 0 else float("nan")
 
 
+class Step(NamedTuple):
+    """One frame of a pass: the frame, the tracker's result on it and the tracker's seconds."""
+
+    frame: np.ndarray
+    result: TrackResult
+    seconds: float
+
+
 def track_frames(
     tracker: ARCFTracker, frames: Iterable[np.ndarray], init_box: Box
-) -> Iterator[tuple[TrackResult, float]]:
-    """Yield (result, seconds) per frame: ``init`` on the first frame, ``update`` afterwards."""
+) -> Iterator[Step]:
+    """The one tracking loop: ``init`` on the first frame, ``update`` on every later one.
+
+    Yields a :class:`Step` per frame, lazily, so a caller may stop early (a time budget) or
+    draw on the frame it gets back. Only the tracker calls are timed, not the reading or
+    decoding of the frames.
+    """
     it = iter(frames)
     try:
         first = next(it)
@@ -39,17 +54,17 @@ def track_frames(
         return
     t0 = time.perf_counter()
     result = tracker.init(first, init_box)
-    yield result, time.perf_counter() - t0
+    yield Step(first, result, time.perf_counter() - t0)
     for frame in it:
         t0 = time.perf_counter()
         result = tracker.update(frame)
-        yield result, time.perf_counter() - t0
+        yield Step(frame, result, time.perf_counter() - t0)
 
 
 def run_sequence(tracker: ARCFTracker, frames: Iterable[np.ndarray], init_box: Box) -> SequenceRun:
     """One-pass evaluation of a whole sequence (OPE: init on the first frame, never re-init)."""
     run = SequenceRun()
-    for result, seconds in track_frames(tracker, frames, init_box):
-        run.results.append(result)
-        run.times.append(seconds)
+    for step in track_frames(tracker, frames, init_box):
+        run.results.append(step.result)
+        run.times.append(step.seconds)
     return run

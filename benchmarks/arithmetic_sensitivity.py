@@ -108,9 +108,9 @@ def replay(job: tuple[str, str, int, str, str]) -> tuple[str, str, int, int | No
     if variant == TABLE:
         overrides["fhog_sse_table"] = table
     tracker = arcf.create_tracker(preset, **overrides)
-    boxes = [tracker.init(seq.read_frame(0), seq.init_box).box]
-    boxes += [tracker.update(seq.read_frame(i)).box for i in range(1, len(seq))]
-    d = np.linalg.norm(centers(np.array(boxes)) - centers(ref[: len(boxes)]), axis=1)
+    boxes = arcf.run_sequence(tracker, (seq.read_frame(i) for i in range(len(seq))),
+                              seq.init_box).boxes
+    d = np.linalg.norm(centers(boxes) - centers(ref[: len(boxes)]), axis=1)
     over = np.flatnonzero(d > MATCH_PX)
     first = int(over[0]) + 1 if over.size else None
     return preset, sequence, variant, first, float(d.mean()), len(seq)

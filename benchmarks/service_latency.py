@@ -36,13 +36,12 @@ def free_port() -> int:
 def library(preset: str, data: list[bytes], box) -> np.ndarray:  # type: ignore[no-untyped-def]
     import arcf
 
-    t = arcf.create_tracker(preset)
-    out = []
-    for i, d in enumerate(data):
-        t0 = time.perf_counter()
-        image = cv2.imdecode(np.frombuffer(d, np.uint8), cv2.IMREAD_UNCHANGED)
-        t.init(image, box) if i == 0 else t.update(image)
+    # decode + track per frame: what a service worker does with a frame
+    out, t0 = [], time.perf_counter()
+    frames = (cv2.imdecode(np.frombuffer(d, np.uint8), cv2.IMREAD_UNCHANGED) for d in data)
+    for _ in arcf.track_frames(arcf.create_tracker(preset), frames, box):
         out.append(time.perf_counter() - t0)
+        t0 = time.perf_counter()
     return np.array(out)
 
 

@@ -70,10 +70,10 @@ def worker(job_file: str, tracker_name: str, threads: str, profile: bool,
         def run() -> float:
             nonlocal first
             t0 = time.perf_counter()
-            tracker.init(frames[0], (x, y, w, h))
-            first = time.perf_counter() - t0
-            for f in frames[1:]:
-                tracker.update(f)
+            steps = arcf.track_frames(tracker, frames, (x, y, w, h))
+            first = next(steps).seconds
+            for _ in steps:
+                pass
             return time.perf_counter() - t0
 
         if profile:

@@ -152,12 +152,9 @@ def _offline(preset: str, seq: Any, data: list[bytes]) -> tuple[float, float]:
     import arcf
     from arcf.eval import score_sequence
 
-    t = arcf.create_tracker(preset)
-    boxes = []
-    for i, d in enumerate(data):
-        frame = cv2.imdecode(np.frombuffer(d, np.uint8), cv2.IMREAD_UNCHANGED)
-        boxes.append((t.init(frame, seq.init_box) if i == 0 else t.update(frame)).box)
-    sc = score_sequence(np.array(boxes), seq.groundtruth[: len(data)])
+    frames = (cv2.imdecode(np.frombuffer(d, np.uint8), cv2.IMREAD_UNCHANGED) for d in data)
+    run = arcf.run_sequence(arcf.create_tracker(preset), frames, seq.init_box)
+    sc = score_sequence(run.boxes, seq.groundtruth[: len(data)])
     return sc.precision20, sc.auc
 
 
@@ -176,9 +173,9 @@ def _library_loop(preset: str, items: list[tuple[tuple[float, ...], list[bytes]]
     frames, t0 = 0, time.perf_counter()
     while time.perf_counter() - t0 < seconds:
         for box, data in items:
-            for i, d in enumerate(data):
-                frame = cv2.imdecode(np.frombuffer(d, np.uint8), cv2.IMREAD_UNCHANGED)
-                tracker.init(frame, box) if i == 0 else tracker.update(frame)
+            decoded = (cv2.imdecode(np.frombuffer(d, np.uint8), cv2.IMREAD_UNCHANGED)
+                       for d in data)
+            for _ in arcf.track_frames(tracker, decoded, box):
                 frames += 1
                 if time.perf_counter() - t0 >= seconds:
                     break

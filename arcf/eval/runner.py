@@ -89,18 +89,15 @@ def run_one(spec: TrackerSpec, seq: Sequence, out: Path) -> SequenceRunInfo:
     """Track one sequence (OPE) and write its files. Runs inside a worker process."""
     import cv2
 
+    from ..run import run_sequence
     from ..tracker import create_tracker
 
     cv2.setNumThreads(1)
     tracker = create_tracker(spec.preset, **dict(spec.overrides))
-    boxes, times, details = [], [], []
-    for i in range(len(seq)):
-        frame = seq.read_frame(i)  # decoding is not part of the tracker's time
-        t0 = time.perf_counter()
-        r = tracker.init(frame, seq.init_box) if i == 0 else tracker.update(frame)
-        times.append(time.perf_counter() - t0)
-        boxes.append(r.box)
-        details.append((r.peak, r.psr, r.aberrance, r.aberrance_release, r.scale))
+    # decoding is not part of the tracker's time
+    run = run_sequence(tracker, (seq.read_frame(i) for i in range(len(seq))), seq.init_box)
+    times = run.times
+    details = [(r.peak, r.psr, r.aberrance, r.aberrance_release, r.scale) for r in run.results]
     folder = result_dir(out, spec, seq.dataset)
     folder.mkdir(parents=True, exist_ok=True)
     np.savetxt(folder / f"{seq.name}_time.txt", np.array(times), fmt="%.6f")
@@ -110,7 +107,7 @@ def run_one(spec: TrackerSpec, seq: Sequence, out: Path) -> SequenceRunInfo:
                comments="")
     np.savetxt(folder / f"{seq.name}_map_diff.txt", d[:, 3], fmt="%.7g")
     part = folder / f"{seq.name}.txt.part"
-    write_results(part, np.array(boxes))
+    write_results(part, run.boxes)
     os.replace(part, folder / f"{seq.name}.txt")  # last: marks the sequence done
     return SequenceRunInfo(seq.name, seq.dataset, len(seq), float(sum(times)))
 
