@@ -26,6 +26,7 @@ ROOT = Path(__file__).resolve().parent.parent
 DEPLOY = ROOT / "deploy" / "zenoh"
 
 pytestmark = [
+    pytest.mark.integration,
     pytest.mark.skipif(shutil.which("openssl") is None, reason="needs openssl"),
     pytest.mark.skipif(not (data_root() / "uav123_10fps").is_dir(), reason="needs ../shared/data"),
 ]

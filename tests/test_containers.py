@@ -69,7 +69,7 @@ def _engine_problem() -> str | None:
 
 
 _PROBLEM = _engine_problem()
-pytestmark = [pytest.mark.docker, pytest.mark.skipif(_PROBLEM is not None,
+pytestmark = [pytest.mark.docker, pytest.mark.integration, pytest.mark.skipif(_PROBLEM is not None,
                                                      reason=_PROBLEM or "")]
 
 

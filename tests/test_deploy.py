@@ -73,6 +73,7 @@ def test_compose_stack_has_router_instances_prometheus_grafana() -> None:
                 assert (DEPLOY / source).exists(), source
 
 
+@pytest.mark.integration
 def test_compose_config_validates_with_docker_compose() -> None:
     if shutil.which("docker") and subprocess.run(["docker", "compose", "version"],
                                                  capture_output=True).returncode == 0:
@@ -133,6 +134,7 @@ def test_zenoh_configs_parse(name: str) -> None:
     zenoh.Config.from_file(str(DEPLOY / "zenoh" / f"{name}.json5"))  # strict: unknown keys fail
 
 
+@pytest.mark.integration
 def test_router_config_runs_a_router_the_service_reaches() -> None:
     zenoh = pytest.importorskip("zenoh")
     port = free_port()

@@ -13,6 +13,7 @@ from types import SimpleNamespace
 import cv2
 import msgpack
 import numpy as np
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -65,6 +66,7 @@ def test_random_bytes_never_crash_the_decoder(data: bytes) -> None:
 
 
 @FAST
+@pytest.mark.slow
 @given(st.sampled_from([*MESSAGE_TYPES, "nope", ""]) | st.text(max_size=10),
        st.sampled_from([SCHEMA_VERSION, 0, 2, -1, "1", None]),
        st.dictionaries(field_names, msgpack_values, max_size=10))

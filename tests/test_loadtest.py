@@ -12,8 +12,9 @@ from arcf.data import data_root
 from arcf.eval import load_dataset
 from service.loadtest import markdown, run_load
 
-pytestmark = pytest.mark.skipif(not (data_root() / "uav123_10fps").is_dir(),
-                                reason="needs ../shared/data")
+pytestmark = [pytest.mark.integration,
+              pytest.mark.skipif(not (data_root() / "uav123_10fps").is_dir(),
+                                 reason="needs ../shared/data")]
 
 
 def test_short_load_accounts_for_every_frame() -> None:

@@ -17,8 +17,9 @@ from service.client import TrackingClient
 from service.settings import ServiceSettings
 from service.stress import run_overload, run_soak
 
-pytestmark = pytest.mark.skipif(not (data_root() / "uav123_10fps").is_dir(),
-                                reason="needs ../shared/data")
+pytestmark = [pytest.mark.integration,
+              pytest.mark.skipif(not (data_root() / "uav123_10fps").is_dir(),
+                                 reason="needs ../shared/data")]
 
 FPS = 10.0
 # the capacity is sized from saturation throughput (80 % of it), not from the benchmark's p99

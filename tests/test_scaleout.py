@@ -27,8 +27,9 @@ from arcf.eval import load_dataset
 from service.client import TrackingClient
 from service.cluster import owner
 
-pytestmark = pytest.mark.skipif(not (data_root() / "uav123_10fps").is_dir(),
-                                reason="needs ../shared/data")
+pytestmark = [pytest.mark.integration,
+              pytest.mark.skipif(not (data_root() / "uav123_10fps").is_dir(),
+                                 reason="needs ../shared/data")]
 
 FPS = 5.0
 LEASE_S = 1.5

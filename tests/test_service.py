@@ -26,8 +26,9 @@ from arcf.eval import load_dataset
 from schemas import KeySpace
 from service.client import ServiceError, TrackingClient
 
-pytestmark = pytest.mark.skipif(not (data_root() / "uav123_10fps").is_dir(),
-                                reason="needs ../shared/data")
+pytestmark = [pytest.mark.integration,
+              pytest.mark.skipif(not (data_root() / "uav123_10fps").is_dir(),
+                                 reason="needs ../shared/data")]
 
 
 @pytest.fixture(scope="module")
