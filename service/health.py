@@ -8,18 +8,20 @@ arguments inside the image.
 from __future__ import annotations
 
 import os
-import re
 import sys
-import urllib.request
+
+from .scrape import fetch, series
 
 
 def check(url: str, timeout: float = 3.0) -> tuple[bool, str]:
     try:
-        with urllib.request.urlopen(url, timeout=timeout) as response:
-            text = response.read().decode()
+        text = fetch(url, timeout)
     except OSError as exc:
         return False, f"metrics endpoint {url} unreachable: {exc}"
-    workers = len(re.findall(r"^arcf_worker_busy_ratio\{", text, flags=re.M))
+    try:
+        workers = len(series(text).get("arcf_worker_busy_ratio", []))
+    except ValueError as exc:  # not Prometheus text
+        return False, f"metrics endpoint {url} answered something else: {exc}"
     if workers == 0:
         return False, "no live worker reported"
     return True, f"ok: {workers} workers"

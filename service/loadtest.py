@@ -21,16 +21,16 @@ import argparse
 import contextlib
 import json
 import os
-import re
 import sys
 import threading
 import time
-import urllib.request
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from .scrape import scrape
 
 
 @dataclass
@@ -131,18 +131,6 @@ def time_breakdown(delta: dict[str, float]) -> dict[str, float]:
     per_frame = delta.get("arcf_track_seconds_count", 0.0) / frames if frames else float("nan")
     return {"decode_ms": decode, "track_ms": track, "sessions_per_frame": per_frame,
             "end_to_end_ms": e2e, "other_ms": e2e - decode - track * per_frame}
-
-
-def scrape(url: str | None) -> dict[str, float]:
-    """Counter totals from a Prometheus endpoint (summed over label values)."""
-    if not url:
-        return {}
-    text = urllib.request.urlopen(url, timeout=5).read().decode()
-    out: dict[str, float] = {}
-    for name, value in re.findall(r"^(arcf_[a-z_]+?)(?:\{[^}]*\})?\s+([0-9.eE+-]+)$", text,
-                                  flags=re.M):
-        out[name] = out.get(name, 0.0) + float(value)
-    return out
 
 
 def _offline(preset: str, seq: Any, data: list[bytes]) -> tuple[float, float]:

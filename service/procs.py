@@ -8,14 +8,14 @@ from __future__ import annotations
 
 import contextlib
 import os
-import re
 import signal
 import socket
 import subprocess
 import sys
 import tempfile
-import urllib.request
 from pathlib import Path
+
+from .scrape import scrape
 
 
 def free_port() -> int:
@@ -78,9 +78,7 @@ class ServiceProcess:
 
     def metric(self, name: str) -> float:
         """Sum of every series of a metric (all label values), scraped over HTTP."""
-        text = urllib.request.urlopen(self.metrics_url, timeout=5).read().decode()
-        pattern = rf"^{re.escape(name)}(?:\{{[^}}]*\}})?\s+([0-9.eE+-]+)$"
-        return sum(float(m) for m in re.findall(pattern, text, flags=re.M))
+        return scrape(self.metrics_url).get(name, 0.0)
 
     def stop(self) -> int:
         self.proc.send_signal(signal.SIGTERM)

@@ -34,7 +34,8 @@ from typing import Any
 
 import numpy as np
 
-from .loadtest import _percentiles, _process_tree, scrape
+from .loadtest import _percentiles, _process_tree
+from .scrape import scrape
 
 GOLDEN = 0.6180339887498949
 
