@@ -24,6 +24,7 @@ from typing import Any
 
 from arcf import ARCFError, make_params
 from arcf.presets import HOST_PARAMETERS, PRESETS
+from schemas import ErrorCode
 
 from .cluster import Cluster, owner, weight
 
@@ -108,9 +109,10 @@ class ControlPlane:
         if not event.wait(self.timeout):
             with self.lock:
                 self._waiting.pop(cid, None)
-            raise _Refused("internal", f"worker {worker} did not confirm within {self.timeout} s")
+            raise _Refused(ErrorCode.INTERNAL,
+                           f"worker {worker} did not confirm within {self.timeout} s")
         if not slot[0]:
-            raise _Refused("internal", f"worker {worker} failed: {slot[1]}")
+            raise _Refused(ErrorCode.INTERNAL, f"worker {worker} failed: {slot[1]}")
 
     def _fenced(self, worker: int) -> None:
         """A worker dropped its sessions because this instance's token was lost (see
@@ -202,13 +204,13 @@ class ControlPlane:
         loaded."""
         with self.lock:
             if sid in self.sessions:
-                raise _Refused("invalid_request", f"session {sid!r} already exists")
+                raise _Refused(ErrorCode.INVALID_REQUEST, f"session {sid!r} already exists")
             if len(self.sessions) >= self.settings.max_sessions:
-                raise _Refused("limit_exceeded", f"this instance already runs "
+                raise _Refused(ErrorCode.LIMIT_EXCEEDED, f"this instance already runs "
                                f"{len(self.sessions)} sessions (max_sessions)")
             n = sum(1 for r in self.sessions.values() if r.stream_id == stream_id)
             if n >= self.settings.max_sessions_per_stream:
-                raise _Refused("limit_exceeded", f"stream {stream_id!r} already has {n} "
+                raise _Refused(ErrorCode.LIMIT_EXCEEDED, f"stream {stream_id!r} already has {n} "
                                "sessions (max_sessions_per_stream)")
             same = [r.worker for r in self.sessions.values() if r.stream_id == stream_id]
             if same:
@@ -260,7 +262,7 @@ class ControlPlane:
                 reply = self._dispatch(request)
         except _Refused as exc:
 
-            metrics.CONTROL.labels(type=kind, outcome=exc.code).inc()
+            metrics.CONTROL.labels(type=kind, outcome=exc.code.value).inc()
             return encode(ErrorMessage(code=exc.code, message=exc.message,
                                        request_id=request.request_id,
                                        stream_id=getattr(request, "stream_id", None),
@@ -298,19 +300,19 @@ class ControlPlane:
         from schemas import Ack, SessionSpec
 
         if req.preset.lower().replace("_", "-") not in PRESETS:
-            raise _Refused("unknown_preset", f"unknown preset {req.preset!r}; choose one of "
-                           f"{', '.join(sorted(PRESETS))}")
+            raise _Refused(ErrorCode.UNKNOWN_PRESET, f"unknown preset {req.preset!r}; choose "
+                           f"one of {', '.join(sorted(PRESETS))}")
         host_only = sorted(set(req.overrides) & HOST_PARAMETERS)
         if host_only:
-            raise _Refused("invalid_parameter", f"{', '.join(host_only)} names a file on the "
-                           "service's host; a request cannot set it")
+            raise _Refused(ErrorCode.INVALID_PARAMETER, f"{', '.join(host_only)} names a file "
+                           "on the service's host; a request cannot set it")
         try:
             make_params(req.preset, **dict(req.overrides))
         except ARCFError as exc:
-            raise _Refused("invalid_parameter", str(exc)) from exc
+            raise _Refused(ErrorCode.INVALID_PARAMETER, str(exc)) from exc
         sid = req.session_id or uuid.uuid4().hex
         if self.cluster is not None and self.cluster.spec(sid) is not None:
-            raise _Refused("invalid_request", f"session {sid!r} already exists")
+            raise _Refused(ErrorCode.INVALID_REQUEST, f"session {sid!r} already exists")
         w = self._admit(sid, req.stream_id, req.preset)
         try:
             self._forward(w, {"op": "start", "session_id": sid, "stream_id": req.stream_id,
@@ -332,9 +334,9 @@ class ControlPlane:
             rec = self.sessions.get(session_id)
         if rec is None:
             if self.cluster is not None and self.cluster.spec(session_id) is not None:
-                raise _Refused("internal", f"session {session_id!r} is moving to this instance "
-                               "(a takeover in progress); retry")
-            raise _Refused("unknown_session", f"no session {session_id!r}")
+                raise _Refused(ErrorCode.INTERNAL, f"session {session_id!r} is moving to this "
+                               "instance (a takeover in progress); retry")
+            raise _Refused(ErrorCode.UNKNOWN_SESSION, f"no session {session_id!r}")
         return rec
 
     def _reinit(self, req: Any) -> Any:
@@ -382,7 +384,9 @@ class ControlPlane:
 
 
 class _Refused(Exception):
-    def __init__(self, code: str, message: str) -> None:
+    """A control request refused with its wire error code."""
+
+    def __init__(self, code: ErrorCode, message: str) -> None:
         super().__init__(message)
         self.code = code
         self.message = message

@@ -22,7 +22,16 @@ import numpy as np
 import simplejpeg
 
 from arcf import ARCFError, create_tracker, warm_up
-from schemas import ErrorMessage, Frame, KeySpace, Result, SchemaError, decode, encode
+from schemas import (
+    ErrorCode,
+    ErrorMessage,
+    Frame,
+    KeySpace,
+    Result,
+    SchemaError,
+    decode,
+    encode,
+)
 
 from .imagecheck import image_size
 
@@ -76,7 +85,7 @@ class _Stream:
     tokens: float = -1.0
     refilled: float = 0.0
     #: when each kind of error notice was last put on the stream's error key
-    noticed: dict[str, float] = field(default_factory=dict)
+    noticed: dict[ErrorCode, float] = field(default_factory=dict)
 
     def take_token(self, rate: float) -> bool:
         """One frame's worth of the stream's rate budget: ``rate`` per second, bursts of one
@@ -134,7 +143,7 @@ def _decode_jpeg(payload: bytes) -> np.ndarray | None:
 
 
 def decode_image(frame: Any, max_pixels: int | None = None
-                 ) -> tuple[np.ndarray | None, tuple[str, str] | None]:
+                 ) -> tuple[np.ndarray | None, tuple[ErrorCode, str] | None]:
     """The frame's pixels as uint8 BGR or gray, or (None, (error code, message)).
 
     Compressed images are sized from their header first: more than ``max_pixels`` is refused
@@ -144,17 +153,18 @@ def decode_image(frame: Any, max_pixels: int | None = None
         if max_pixels is not None:
             size = image_size(frame.payload)
             if size is None:
-                return None, ("decode_error", f"not a readable {frame.encoding} header")
+                return None, (ErrorCode.DECODE_ERROR, f"not a readable {frame.encoding} header")
             if size[0] * size[1] > max_pixels:
-                return None, ("image_too_large", f"{frame.encoding} declares {size[0]}x{size[1]}"
-                              f" = {size[0] * size[1]} pixels; the limit is {max_pixels}")
+                return None, (ErrorCode.IMAGE_TOO_LARGE,
+                              f"{frame.encoding} declares {size[0]}x{size[1]} = "
+                              f"{size[0] * size[1]} pixels; the limit is {max_pixels}")
         image = _decode_jpeg(frame.payload) if frame.encoding == "jpeg" else None
         if image is not None:
             return image, None
         try:
             image = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
         except cv2.error as exc:  # e.g. an empty buffer: OpenCV asserts instead of failing
-            return None, ("decode_error", f"cannot decode {frame.encoding} frame: "
+            return None, (ErrorCode.DECODE_ERROR, f"cannot decode {frame.encoding} frame: "
                           f"{str(exc).strip().splitlines()[-1]}")
         if image is None:
             return None, None
@@ -164,8 +174,8 @@ def decode_image(frame: Any, max_pixels: int | None = None
             image = cv2.cvtColor(image, cv2.COLOR_BGRA2BGR)
         return image, None
     if max_pixels is not None and frame.width * frame.height > max_pixels:
-        return None, ("image_too_large", f"{frame.width}x{frame.height} exceeds {max_pixels} "
-                      "pixels")
+        return None, (ErrorCode.IMAGE_TOO_LARGE,
+                      f"{frame.width}x{frame.height} exceeds {max_pixels} pixels")
     channels = 3 if frame.encoding == "bgr8" else 1
     image = data.reshape(frame.height, frame.width, channels)
     return (image if channels == 3 else image[..., 0]), None
@@ -347,11 +357,11 @@ class Worker:
             self.metrics.STREAMS.dec()
 
     # ------------------------------------------------------------------ frames
-    def _error(self, stream: _Stream, code: str, message: str, seq: int | None,
+    def _error(self, stream: _Stream, code: ErrorCode, message: str, seq: int | None,
                every_s: float = 0.0) -> None:
         """Count an error and tell the stream; with ``every_s``, at most one notice per that
         many seconds (a flood of bad frames must not become a flood of notices)."""
-        self.metrics.ERRORS.labels(kind=code).inc()
+        self.metrics.ERRORS.labels(kind=code.value).inc()
         now = time.monotonic()
         if every_s and now - stream.noticed.get(code, -1e9) < every_s:
             return
@@ -365,19 +375,19 @@ class Worker:
         try:
             frame = decode(payload, expected=Frame, max_payload=self.settings.max_payload)
         except SchemaError as exc:
-            self._error(stream, exc.code.value, str(exc), None)
+            self._error(stream, exc.code, str(exc), None)
             return
         if frame.stream_id != stream.stream_id:
-            self._error(stream, "invalid_request",
+            self._error(stream, ErrorCode.INVALID_REQUEST,
                         f"frame says stream {frame.stream_id!r} on {stream.stream_id!r}", frame.seq)
             return
         if stream.last_seq is not None and frame.seq <= stream.last_seq:
             # duplicate or out of order: tracking it would move the trackers back in time
-            self._error(stream, "stale_frame", f"frame {frame.seq} is not after frame "
+            self._error(stream, ErrorCode.STALE_FRAME, f"frame {frame.seq} is not after frame "
                         f"{stream.last_seq}; dropped", frame.seq, every_s=1.0)
             return
         if not stream.take_token(self.settings.max_stream_fps):
-            self._error(stream, "rate_limited", f"stream {stream.stream_id!r} exceeds "
+            self._error(stream, ErrorCode.RATE_LIMITED, f"stream {stream.stream_id!r} exceeds "
                         f"{self.settings.max_stream_fps:g} frames/s; frame {frame.seq} refused",
                         frame.seq, every_s=1.0)
             return
@@ -389,7 +399,8 @@ class Worker:
         decode_s = time.perf_counter() - t0
         m.DECODE.observe(decode_s)
         if image is None:
-            code, text = problem or ("decode_error", f"cannot decode {frame.encoding} frame")
+            code, text = problem or (ErrorCode.DECODE_ERROR,
+                                     f"cannot decode {frame.encoding} frame")
             self._error(stream, code, text, frame.seq)
         else:
             m.FRAMES_PROCESSED.inc()
@@ -407,7 +418,7 @@ class Worker:
                     status = s.pending_status
                 except ARCFError as exc:
                     status, message = "error", str(exc)
-                    m.ERRORS.labels(kind="invalid_box").inc()
+                    m.ERRORS.labels(kind=ErrorCode.INVALID_BOX.value).inc()
                 s.pending_box = None
             elif s.tracker.initialized:
                 try:
