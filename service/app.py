@@ -40,7 +40,7 @@ class Service:
         import zenoh
         from prometheus_client import start_http_server
 
-        from schemas import ErrorMessage, KeySpace, encode
+        from schemas import ErrorCode, ErrorMessage, KeySpace, encode
 
         from . import metrics
         from .cluster import Cluster
@@ -93,7 +93,7 @@ class Service:
                 if pub is None:
                     pub = errors_pub[stream] = self.session.declare_publisher(
                         self.keys.errors(stream), congestion_control=zenoh.CongestionControl.DROP)
-                pub.put(encode(ErrorMessage(code="no_session", stream_id=stream,
+                pub.put(encode(ErrorMessage(code=ErrorCode.NO_SESSION, stream_id=stream,
                                             message=f"no tracking session on stream {stream!r}")))
 
         # Only for the embedded router: in a multi-instance deployment every instance would
@@ -136,7 +136,7 @@ class Service:
         after says ``resumed``."""
         import zenoh
 
-        from schemas import ErrorMessage, encode
+        from schemas import ErrorCode, ErrorMessage, encode
 
         from . import metrics
         from .worker import worker_main
@@ -156,7 +156,7 @@ class Service:
         for rec in self.control.worker_replaced(k, queue):
             self.session.put(
                 self.keys.errors(rec.stream_id),
-                encode(ErrorMessage(code="internal", stream_id=rec.stream_id,
+                encode(ErrorMessage(code=ErrorCode.INTERNAL, stream_id=rec.stream_id,
                                     session_id=rec.session_id,
                                     message=f"worker {k} died; session {rec.session_id} "
                                     "resumes from its last published box")),

@@ -483,7 +483,7 @@ class Worker:
                     except Exception:  # a bug must not take the worker (and its streams) down
                         log.exception("worker %d: unexpected error on stream %s", self.index,
                                       stream.stream_id)
-                        self.metrics.ERRORS.labels(kind="internal").inc()
+                        self.metrics.ERRORS.labels(kind=ErrorCode.INTERNAL.value).inc()
                     spent = time.perf_counter() - t0
                     busy_s += spent
                     if spent > 0.5:
