@@ -13,6 +13,7 @@ that is without talking, so a client may reach the service through any of them.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import logging
 import threading
@@ -27,6 +28,7 @@ from arcf.presets import HOST_PARAMETERS, PRESETS
 from schemas import ErrorCode
 
 from .cluster import Cluster, owner, weight
+from .commands import Command, Fenced, ReinitSession, StartSession, StopSession
 
 __all__ = ["ControlPlane", "SessionRecord", "owner", "place"]
 
@@ -86,17 +88,16 @@ class ControlPlane:
                 return
             if item is None:
                 return
-            cid, ok, message = item
-            if cid is None and str(message).startswith("fenced:"):
-                self._fenced(int(str(message).split(":", 1)[1]))
+            if isinstance(item, Fenced):
+                self._fenced(item.worker)
                 continue
             with self.lock:
-                waiter = self._waiting.pop(cid, None)
+                waiter = self._waiting.pop(item.reply_id, None)
             if waiter is not None:
-                waiter[1].extend((ok, message))
+                waiter[1].extend((item.ok, item.message))
                 waiter[0].set()
 
-    def _forward(self, worker: int, cmd: dict[str, Any]) -> None:
+    def _forward(self, worker: int, cmd: Command) -> None:
         """Send a command to its worker and wait until the worker has applied it."""
         if self.responses is None:
             self.queues[worker].put(cmd)
@@ -105,7 +106,7 @@ class ControlPlane:
         event, slot = threading.Event(), []
         with self.lock:
             self._waiting[cid] = (event, slot)
-        self.queues[worker].put({**cmd, "id": cid})
+        self.queues[worker].put(dataclasses.replace(cmd, reply_id=cid))
         if not event.wait(self.timeout):
             with self.lock:
                 self._waiting.pop(cid, None)
@@ -169,11 +170,10 @@ class ControlPlane:
                 box, frame_seq, resumed = self.cluster.resume_point(sid)
                 try:
                     w = self._admit(sid, spec.stream_id, spec.preset)
-                    self._forward(w, {"op": "start", "session_id": sid,
-                                      "stream_id": spec.stream_id, "box": list(box),
-                                      "preset": spec.preset, "overrides": dict(spec.overrides),
-                                      "frame_seq": frame_seq,
-                                      "status": "resumed" if resumed else "initialized"})
+                    self._forward(w, StartSession(
+                        session_id=sid, stream_id=spec.stream_id, box=tuple(box),
+                        preset=spec.preset, overrides=dict(spec.overrides), frame_seq=frame_seq,
+                        status="resumed" if resumed else "initialized"))
                 except _Refused as exc:
                     with self.lock:
                         self.sessions.pop(sid, None)
@@ -194,7 +194,7 @@ class ControlPlane:
             rec = self.sessions.pop(session_id, None)
         if rec is not None:
             try:
-                self._forward(rec.worker, {"op": "stop", "session_id": session_id})
+                self._forward(rec.worker, StopSession(session_id))
             except _Refused as exc:
                 log.error("could not stop session %s: %s", session_id, exc.message)
 
@@ -315,9 +315,9 @@ class ControlPlane:
             raise _Refused(ErrorCode.INVALID_REQUEST, f"session {sid!r} already exists")
         w = self._admit(sid, req.stream_id, req.preset)
         try:
-            self._forward(w, {"op": "start", "session_id": sid, "stream_id": req.stream_id,
-                              "box": list(req.box), "preset": req.preset,
-                              "overrides": dict(req.overrides), "frame_seq": req.frame_seq})
+            self._forward(w, StartSession(
+                session_id=sid, stream_id=req.stream_id, box=tuple(req.box), preset=req.preset,
+                overrides=dict(req.overrides), frame_seq=req.frame_seq))
         except _Refused:
             with self.lock:
                 self.sessions.pop(sid, None)
@@ -343,8 +343,7 @@ class ControlPlane:
         from schemas import Ack
 
         rec = self._record(req.session_id)
-        self._forward(rec.worker, {"op": "reinit", "session_id": rec.session_id,
-                                   "box": list(req.box), "frame_seq": req.frame_seq})
+        self._forward(rec.worker, ReinitSession(rec.session_id, tuple(req.box), req.frame_seq))
         if self.cluster is not None and (spec := self.cluster.spec(rec.session_id)) is not None:
             # a takeover before the next result starts from the new box, not the old one
             self.cluster.publish(spec.model_copy(update={"box": req.box,
@@ -360,7 +359,7 @@ class ControlPlane:
             self.sessions.pop(rec.session_id, None)
         if self.cluster is not None:
             self.cluster.withdraw(rec.session_id)
-        self._forward(rec.worker, {"op": "stop", "session_id": rec.session_id})
+        self._forward(rec.worker, StopSession(rec.session_id))
         return Ack(request_id=req.request_id, session_id=rec.session_id,
                    stream_id=rec.stream_id, message="session stopped")
 

@@ -110,7 +110,9 @@ class MemorySampler:
 
 # --------------------------------------------------------------------------- the fleet
 @dataclass
-class _Stream:
+class _SimulatedStream:
+    """One simulated drone of the fleet: its frames, sessions and what came back."""
+
     name: str
     index: int
     frames: list[bytes]
@@ -144,14 +146,14 @@ class Fleet:
             data = [p.read_bytes() for p in seq.frames[:window]]
             # forth and back: 0 1 ... n-1 n-2 ... 1, repeated
             self._clips.append((seq.name, tuple(seq.init_box), data + data[-2:0:-1]))
-        self.live: list[_Stream] = []
-        self.ended: list[_Stream] = []
+        self.live: list[_SimulatedStream] = []
+        self.ended: list[_SimulatedStream] = []
         self._count = 0
         self.sessions_started = 0
         self.sessions_stopped = 0
 
     def add(self, n: int = 1, *, sessions: int = 1, name: str | None = None,
-            reinit_on_wrap: bool = False) -> list[_Stream]:
+            reinit_on_wrap: bool = False) -> list[_SimulatedStream]:
         """Start ``n`` streams (``name`` only with n=1, e.g. to reuse a stream id). With
         ``reinit_on_wrap`` the sessions are re-initialised on the first box each time the
         clip starts over (the one frame where that box is right)."""
@@ -160,10 +162,10 @@ class Fleet:
             k = self._count
             self._count += 1
             clip_name, box, frames = self._clips[k % len(self._clips)]
-            st = _Stream(name or f"stress-{k}-{clip_name}", k, frames, box,
+            st = _SimulatedStream(name or f"stress-{k}-{clip_name}", k, frames, box,
                          reinit_on_wrap=reinit_on_wrap)
 
-            def on_result(r: Any, st: _Stream = st) -> None:
+            def on_result(r: Any, st: _SimulatedStream = st) -> None:
                 now = time.monotonic()
                 st.results.append((r.session_id, r.frame_seq, now,
                                    (time.time_ns() - r.capture_ts_ns) / 1e9, r.dropped,
@@ -181,7 +183,7 @@ class Fleet:
             out.append(st)
         return out
 
-    def _publish(self, st: _Stream) -> None:
+    def _publish(self, st: _SimulatedStream) -> None:
         period = 1.0 / self.fps
         t0 = time.monotonic() + ((st.index * GOLDEN) % 1.0) * period
         i = 0
@@ -196,7 +198,7 @@ class Fleet:
             st.sent.append((i, time.monotonic()))
             i += 1
 
-    def remove(self, n: int = 1, *, streams: list[_Stream] | None = None) -> None:
+    def remove(self, n: int = 1, *, streams: list[_SimulatedStream] | None = None) -> None:
         """Stop ``streams`` (default: the ``n`` newest): publishing stops, then the sessions."""
         chosen = streams if streams is not None else self.live[-n:] if n else []
         for st in chosen:
@@ -216,10 +218,10 @@ class Fleet:
         self.remove(streams=list(self.live))
 
     # ------------------------------------------------------------------ measurements
-    def streams(self) -> list[_Stream]:
+    def streams(self) -> list[_SimulatedStream]:
         return self.ended + self.live
 
-    def window(self, t0: float, t1: float, streams: list[_Stream] | None = None
+    def window(self, t0: float, t1: float, streams: list[_SimulatedStream] | None = None
                ) -> dict[str, Any]:
         """What happened between monotonic times t0 and t1: frames offered, results, frames
         the service reported dropped (``dropped`` of the results received), latency."""
@@ -428,7 +430,7 @@ def run_overload(client: Any, sequences: list[Any], *, service_pid: int,
             fleet.close()
     delta = _metrics_delta(before, metrics_url)
 
-    def phase(name: str, start: str, end: str, streams: list[_Stream] | None = None
+    def phase(name: str, start: str, end: str, streams: list[_SimulatedStream] | None = None
               ) -> dict[str, Any]:
         a, b = marks[start] + settle_s, marks[end]
         stats = fleet.window(a, b, streams)

@@ -33,6 +33,14 @@ from schemas import (
     encode,
 )
 
+from .commands import (
+    Command,
+    Confirmation,
+    Fenced,
+    ReinitSession,
+    StartSession,
+    StopSession,
+)
 from .imagecheck import image_size
 
 log = logging.getLogger("arcf.service.worker")
@@ -237,7 +245,7 @@ class Worker:
             "if one is live")
         for sid in list(self.sessions):
             self._stop(sid)
-        self.responses.put((None, False, f"fenced:{self.index}"))
+        self.responses.put(Fenced(self.index))
 
     def _final_statuses(self, reason: str) -> None:
         """One last result per session, status ``stopped``: a ground station learns that its
@@ -284,31 +292,32 @@ class Worker:
             self.wake.set()
 
     # ------------------------------------------------------------------ commands
-    def _apply(self, cmd: dict[str, Any]) -> None:
+    def _apply(self, cmd: Command) -> None:
         """Apply one command and confirm it, so the control plane's ack means "in effect"."""
         try:
             self._apply_command(cmd)
-            reply = (cmd.get("id"), True, "")
+            reply = Confirmation(cmd.reply_id or "", True)
         except Exception as exc:  # reported to the requester, never fatal to the worker
-            log.exception("worker %d: command %s failed", self.index, cmd.get("op"))
-            reply = (cmd.get("id"), False, f"{type(exc).__name__}: {exc}")
-        if cmd.get("id") is not None:
+            log.exception("worker %d: command %s failed", self.index, type(cmd).__name__)
+            reply = Confirmation(cmd.reply_id or "", False, f"{type(exc).__name__}: {exc}")
+        if cmd.reply_id is not None:
             self.responses.put(reply)
 
-    def _apply_command(self, cmd: dict[str, Any]) -> None:
-        kind = cmd["op"]
-        if kind == "start":
+    def _apply_command(self, cmd: Command) -> None:
+        if isinstance(cmd, StartSession):
             self._start(cmd)
-        elif kind == "reinit":
-            s = self.sessions.get(cmd["session_id"])
+        elif isinstance(cmd, ReinitSession):
+            s = self.sessions.get(cmd.session_id)
             if s is not None:
-                s.pending_box, s.pending_seq = tuple(cmd["box"]), cmd.get("frame_seq")
+                s.pending_box, s.pending_seq = tuple(cmd.box), cmd.frame_seq
                 s.pending_status = "reinitialized"
-        elif kind == "stop":
-            self._stop(cmd["session_id"])
+        elif isinstance(cmd, StopSession):
+            self._stop(cmd.session_id)
+        else:
+            raise TypeError(f"unknown worker command {cmd!r}")
 
-    def _start(self, cmd: dict[str, Any]) -> None:
-        stream_id = cmd["stream_id"]
+    def _start(self, cmd: StartSession) -> None:
+        stream_id = cmd.stream_id
         stream = self.streams.get(stream_id)
         if stream is None:
             inbox = _Inbox(self.settings.frame_queue, self.wake)
@@ -319,12 +328,12 @@ class Worker:
             self._sync_with_router()
             self.metrics.STREAMS.inc()
         pub = self.session.declare_publisher(
-            self.keys.results(stream_id, cmd["session_id"]),
+            self.keys.results(stream_id, cmd.session_id),
             congestion_control=self.zenoh.CongestionControl.DROP)
-        s = _Session(cmd["session_id"], stream_id, cmd["preset"],
-                     create_tracker(cmd["preset"], **cmd.get("overrides", {})), pub,
-                     pending_box=tuple(cmd["box"]), pending_seq=cmd.get("frame_seq"),
-                     pending_status=cmd.get("status", "initialized"))
+        s = _Session(cmd.session_id, stream_id, cmd.preset,
+                     create_tracker(cmd.preset, **cmd.overrides), pub,
+                     pending_box=tuple(cmd.box), pending_seq=cmd.frame_seq,
+                     pending_status=cmd.status)
         if s.pending_status == "resumed" and s.pending_seq:
             # frames between the last published result and the takeover count as dropped
             s.last_seq = s.pending_seq - 1
@@ -470,7 +479,7 @@ class Worker:
                     self._apply(cmd)
                     if time.perf_counter() - t0 > 0.25:  # it stalls every stream of the worker
                         log.warning("worker %d: command %s took %.0f ms", self.index,
-                                    cmd.get("op"), 1e3 * (time.perf_counter() - t0))
+                                    type(cmd).__name__, 1e3 * (time.perf_counter() - t0))
                 worked = False
                 for stream in list(self.streams.values()):
                     item = stream.inbox.pop()

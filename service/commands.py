@@ -1,0 +1,64 @@
+"""What the control plane and the worker processes say to each other (over multiprocessing
+queues, pickled). Internal, not part of the wire contract: typed as the wire messages are, so
+that a misspelt field fails where it is written instead of as a KeyError in another process.
+
+Control plane -> worker: :class:`StartSession`, :class:`ReinitSession`, :class:`StopSession`,
+each with the ``reply_id`` the control plane waits on. Worker -> control plane:
+:class:`Confirmation` of a command, or :class:`Fenced` when a worker dropped its sessions
+because the instance lost its place in the cluster.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+
+@dataclass(frozen=True)
+class StartSession:
+    """Create a session's tracker; it initialises on frame ``frame_seq`` (or the next frame)."""
+
+    session_id: str
+    stream_id: str
+    box: tuple[float, float, float, float]
+    preset: str
+    overrides: dict[str, Any] = field(default_factory=dict)
+    frame_seq: int | None = None
+    #: The first result's status: a new session, or one resumed after a takeover.
+    status: Literal["initialized", "resumed"] = "initialized"
+    reply_id: str | None = None
+
+
+@dataclass(frozen=True)
+class ReinitSession:
+    """Re-initialise a session on a new box from frame ``frame_seq`` (or the next frame)."""
+
+    session_id: str
+    box: tuple[float, float, float, float]
+    frame_seq: int | None = None
+    reply_id: str | None = None
+
+
+@dataclass(frozen=True)
+class StopSession:
+    session_id: str
+    reply_id: str | None = None
+
+
+Command = StartSession | ReinitSession | StopSession
+
+
+@dataclass(frozen=True)
+class Confirmation:
+    """A command applied (``ok``) or failed (``message`` says why)."""
+
+    reply_id: str
+    ok: bool
+    message: str = ""
+
+
+@dataclass(frozen=True)
+class Fenced:
+    """Worker ``worker`` dropped every session it ran (the instance's token was lost)."""
+
+    worker: int
