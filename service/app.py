@@ -17,11 +17,10 @@ import signal
 import sys
 import threading
 import time
-from pathlib import Path
 from typing import Any
 
 from . import __version__, multiproc
-from .settings import ServiceSettings
+from .settings import ServiceSettings, add_arguments, from_arguments
 
 log = logging.getLogger("arcf.service")
 
@@ -193,23 +192,7 @@ class Service:
 
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="arcf-service", description=__doc__.splitlines()[0])
-    ap.add_argument("--mode", choices=("router", "peer", "client"))
-    ap.add_argument("--listen", action="append", help="Zenoh listen endpoint (repeatable)")
-    ap.add_argument("--connect", action="append", help="Zenoh connect endpoint (repeatable)")
-    ap.add_argument("--zenoh-config", type=Path, help="Zenoh JSON5 config file")
-    ap.add_argument("--workers", type=int)
-    ap.add_argument("--prefix")
-    ap.add_argument("--frame-queue", type=int, help="newest frames kept per stream")
-    ap.add_argument("--max-payload", type=int, help="largest frame payload in bytes")
-    ap.add_argument("--max-pixels", type=int,
-                    help="largest image in pixels, from its header (decompression bombs)")
-    ap.add_argument("--max-stream-fps", type=float, help="most frames/s accepted per stream")
-    ap.add_argument("--max-sessions", type=int, help="most sessions on this instance")
-    ap.add_argument("--max-sessions-per-stream", type=int, help="most sessions on one stream")
-    ap.add_argument("--metrics-port", type=int, help="Prometheus port (0: any, -1: off)")
-    ap.add_argument("--metrics-host")
-    ap.add_argument("--lease-ms", type=int, help="Zenoh lease: how fast a hung peer is noticed")
-    ap.add_argument("--instance-id", help="this instance's id among several (default: random)")
+    add_arguments(ap)  # one flag per setting, from its declaration
     ap.add_argument("--version", action="version", version=f"arcf-service {__version__}")
     return ap
 
@@ -218,15 +201,7 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
     args = build_parser().parse_args(argv)
     try:
-        settings = ServiceSettings.from_env(
-            mode=args.mode, listen=tuple(args.listen) if args.listen else None,
-            connect=tuple(args.connect) if args.connect else None,
-            zenoh_config=args.zenoh_config, workers=args.workers, prefix=args.prefix,
-            frame_queue=args.frame_queue, max_payload=args.max_payload,
-            max_pixels=args.max_pixels, max_stream_fps=args.max_stream_fps,
-            max_sessions=args.max_sessions, max_sessions_per_stream=args.max_sessions_per_stream,
-            metrics_port=args.metrics_port, metrics_host=args.metrics_host,
-            lease_ms=args.lease_ms, instance_id=args.instance_id)
+        settings = from_arguments(args)
     except ValueError as exc:
         raise SystemExit(f"arcf-service: {exc}") from exc
     service = Service(settings)

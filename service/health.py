@@ -1,16 +1,16 @@
 """``arcf-healthcheck``: exit 0 when the local service instance is healthy (container probe).
 
 Healthy means its metrics endpoint answers and reports at least one live worker. It reads the
-port and host from the same ``ARCF_SERVICE_*`` variables as the service, so the probe needs no
-arguments inside the image.
+port and host as the service reads its ``ARCF_SERVICE_*`` variables (``ServiceSettings``), so
+the probe needs no arguments inside the image.
 """
 
 from __future__ import annotations
 
-import os
 import sys
 
 from .scrape import fetch, series
+from .settings import ServiceSettings
 
 
 def check(url: str, timeout: float = 3.0) -> tuple[bool, str]:
@@ -28,11 +28,15 @@ def check(url: str, timeout: float = 3.0) -> tuple[bool, str]:
 
 
 def main() -> int:
-    host = os.environ.get("ARCF_SERVICE_METRICS_HOST", "127.0.0.1")
+    try:  # the service's own settings: its config file is not known here, its variables are
+        settings = ServiceSettings.from_env()
+    except ValueError as exc:
+        print(f"unhealthy: {exc}")
+        return 1
+    host = settings.metrics_host
     if host in ("0.0.0.0", "::", ""):
         host = "127.0.0.1"
-    port = os.environ.get("ARCF_SERVICE_METRICS_PORT", "9464")
-    ok, message = check(f"http://{host}:{port}/metrics")
+    ok, message = check(f"http://{host}:{settings.metrics_port}/metrics")
     print(message)
     return 0 if ok else 1
 

@@ -1,52 +1,74 @@
-"""Service settings: one frozen object, from command-line flags and ``ARCF_SERVICE_*`` variables."""
+"""Service settings: one frozen object, declared once, read from a TOML config file,
+``ARCF_SERVICE_*`` variables and command-line flags generated from the declaration."""
 
 from __future__ import annotations
 
+import argparse
 import os
 import uuid
-from dataclasses import dataclass, field, replace
+from dataclasses import MISSING, dataclass, field, fields, replace
 from pathlib import Path
+from typing import Any
+
+import tomllib
 
 ENV_PREFIX = "ARCF_SERVICE_"
 
 
+def _about(help: str, choices: tuple[str, ...] | None = None,
+           kind: type | None = None) -> dict[str, Any]:
+    """A setting's ``metadata``: the help its flag and the docs show, its allowed values, and
+    its value type where the default does not say it."""
+    return {"help": help, "choices": choices, "kind": kind}
+
+
 @dataclass(frozen=True)
 class ServiceSettings:
-    #: Key-expression prefix of the wire contract.
-    prefix: str = "arcf/v1"
-    #: Zenoh mode of the main process: "router" embeds a router (no infrastructure needed);
-    #: "client"/"peer" attach to an existing Zenoh network through ``connect``.
-    mode: str = "router"
-    listen: tuple[str, ...] = ("tcp/127.0.0.1:7447",)
-    connect: tuple[str, ...] = ()
-    #: A Zenoh JSON5 config file applied before the settings above.
-    zenoh_config: Path | None = None
-    #: Worker processes (default: one per core).
-    workers: int = field(default_factory=lambda: os.cpu_count() or 1)
-    #: Newest frames kept per stream; older ones are dropped (and counted) when a worker lags.
-    frame_queue: int = 2
-    #: Largest accepted frame payload, bytes.
-    max_payload: int = 8 * 1024 * 1024
-    #: Largest number of sessions on one stream.
-    max_sessions_per_stream: int = 16
-    #: Largest number of sessions on this instance.
-    max_sessions: int = 256
-    #: Largest image, in pixels, as declared by its header (checked before decoding: a
-    #: decompression bomb is refused without allocating anything). 8K UHD is 33.2 MP.
-    max_pixels: int = 40_000_000
-    #: Most frames per second accepted from one stream (sustained; one second of burst); the
-    #: excess is refused and counted, so one flooding station cannot starve the others.
-    max_stream_fps: float = 60.0
-    metrics_host: str = "127.0.0.1"
-    #: Prometheus endpoint port (0: pick a free port; negative: disabled).
-    metrics_port: int = 9464
-    #: Zenoh lease (ms): how fast a hung peer is noticed.
-    lease_ms: int = 10000
-    #: Seconds start-up waits for every worker to be ready. A worker loads the tracker's
-    #: compiled kernels first, or compiles them where no cache exists (~11 s, longer on a
-    #: loaded machine); past this the service exits with an error instead of serving.
-    worker_start_s: float = 120.0
-    instance_id: str = field(default_factory=lambda: uuid.uuid4().hex[:8])
+    """Every setting of ``arcf-service``, declared once: the command-line flags
+    (``--max-stream-fps``), the ``ARCF_SERVICE_*`` environment variables
+    (``ARCF_SERVICE_MAX_STREAM_FPS``) and the TOML config file's keys (``max_stream_fps``) are
+    all generated from these fields (``add_arguments``, ``from_sources``)."""
+
+    prefix: str = field(default="arcf/v1",
+                        metadata=_about("key-expression prefix of the wire contract"))
+    mode: str = field(default="router", metadata=_about(
+        "Zenoh mode: 'router' embeds a router (no infrastructure needed); 'client' / 'peer' "
+        "attach to an existing Zenoh network through --connect",
+        choices=("router", "peer", "client")))
+    listen: tuple[str, ...] = field(default=("tcp/127.0.0.1:7447",),
+                                    metadata=_about("Zenoh listen endpoint (repeatable)"))
+    connect: tuple[str, ...] = field(default=(),
+                                     metadata=_about("Zenoh connect endpoint (repeatable)"))
+    zenoh_config: Path | None = field(default=None, metadata=_about(
+        "a Zenoh JSON5 config file applied before the settings above", kind=Path))
+    workers: int = field(default_factory=lambda: os.cpu_count() or 1,
+                         metadata=_about("worker processes (default: one per core)"))
+    frame_queue: int = field(default=2, metadata=_about(
+        "newest frames kept per stream; older ones are dropped (and counted) when a worker "
+        "lags"))
+    max_payload: int = field(default=8 * 1024 * 1024,
+                             metadata=_about("largest accepted frame payload, bytes"))
+    max_sessions_per_stream: int = field(default=16,
+                                         metadata=_about("most sessions on one stream"))
+    max_sessions: int = field(default=256, metadata=_about("most sessions on this instance"))
+    max_pixels: int = field(default=40_000_000, metadata=_about(
+        "largest image in pixels, as its header declares it (checked before decoding: a "
+        "decompression bomb is refused without allocating anything; 8K is 33.2 MP)"))
+    max_stream_fps: float = field(default=60.0, metadata=_about(
+        "most frames/s accepted from one stream (sustained, one second of burst); the excess "
+        "is refused and counted, so one flooding station cannot starve the others"))
+    metrics_host: str = field(default="127.0.0.1",
+                              metadata=_about("Prometheus endpoint address"))
+    metrics_port: int = field(default=9464, metadata=_about(
+        "Prometheus endpoint port (0: any free port, negative: disabled)"))
+    lease_ms: int = field(default=10000,
+                          metadata=_about("Zenoh lease, ms: how fast a hung peer is noticed"))
+    worker_start_s: float = field(default=120.0, metadata=_about(
+        "seconds start-up waits for every worker to be ready (a worker loads the tracker's "
+        "compiled kernels, or compiles them where no cache exists: ~11 s); past this the "
+        "service exits with an error instead of serving"))
+    instance_id: str = field(default_factory=lambda: uuid.uuid4().hex[:8], metadata=_about(
+        "this instance's id among several (default: random)"))
 
     def __post_init__(self) -> None:
         if self.mode not in ("router", "peer", "client"):
@@ -79,26 +101,93 @@ class ServiceSettings:
 
     @classmethod
     def from_env(cls, env: dict[str, str] | None = None, **overrides: object) -> ServiceSettings:
-        """Settings from ``ARCF_SERVICE_<FIELD>`` variables (lists comma-separated)."""
+        """Settings from ``ARCF_SERVICE_<FIELD>`` variables (lists comma-separated), then
+        ``overrides`` (None: not given)."""
+        return cls.from_sources(env=env, **overrides)
+
+    @classmethod
+    def from_sources(cls, config: str | os.PathLike[str] | None = None,
+                     env: dict[str, str] | None = None, **overrides: object
+                     ) -> ServiceSettings:
+        """Defaults, then the TOML ``config`` file, then ``ARCF_SERVICE_*`` variables, then
+        ``overrides`` (the flags; None: not given): each later source wins. Unknown keys and
+        values of the wrong type are refused with ``ValueError``."""
         env = dict(os.environ if env is None else env)
         values: dict[str, object] = {}
-        base = cls()
-        for name in base.__dataclass_fields__:
+        if config is not None:
+            try:
+                with open(config, "rb") as f:
+                    table = tomllib.load(f)
+            except (OSError, tomllib.TOMLDecodeError) as exc:
+                raise ValueError(f"config file {config}: {exc}") from exc
+            unknown = sorted(set(table) - set(_FIELDS))
+            if unknown:
+                raise ValueError(f"config file {config}: unknown settings {unknown}; valid: "
+                                 f"{sorted(_FIELDS)}")
+            for name, value in table.items():
+                values[name] = _convert(name, value)
+        for name in _FIELDS:
             raw = env.get(ENV_PREFIX + name.upper())
-            if raw is None:
-                continue
-            current = getattr(base, name)
-            if isinstance(current, tuple):
-                values[name] = tuple(v.strip() for v in raw.split(",") if v.strip())
-            elif isinstance(current, bool):
-                values[name] = raw.lower() in ("1", "true", "yes")
-            elif isinstance(current, int):
-                values[name] = int(raw)
-            elif isinstance(current, float):
-                values[name] = float(raw)
-            elif name == "zenoh_config":
-                values[name] = Path(raw)
-            else:
-                values[name] = raw
-        values.update({k: v for k, v in overrides.items() if v is not None})
-        return replace(base, **values)  # type: ignore[arg-type]
+            if raw is not None:
+                values[name] = _convert(name, raw)
+        for name, value in overrides.items():
+            if name not in _FIELDS:
+                raise ValueError(f"unknown setting {name!r}")
+            if value is not None:
+                values[name] = _convert(name, value)
+        return replace(cls(), **values)  # type: ignore[arg-type]
+
+
+_FIELDS = {f.name: f for f in fields(ServiceSettings)}
+
+
+def _kind(name: str) -> type:
+    """A setting's value type: declared (``kind``), else its default's."""
+    f = _FIELDS[name]
+    if f.metadata.get("kind") is not None:
+        return f.metadata["kind"]
+    default = f.default if f.default is not MISSING else f.default_factory()  # type: ignore[misc]
+    return type(default)
+
+
+def _convert(name: str, value: object) -> object:
+    """A value from a flag, a variable (text) or the config file, as the setting's type."""
+    kind = _kind(name)
+    try:
+        if kind is tuple:
+            if isinstance(value, str):
+                return tuple(v.strip() for v in value.split(",") if v.strip())
+            return tuple(str(v) for v in value)  # type: ignore[union-attr]
+        if kind is bool:
+            if isinstance(value, str):
+                return value.strip().lower() in ("1", "true", "yes", "on")
+            return bool(value)
+        if kind in (int, float) and isinstance(value, bool):
+            raise TypeError("a number, not true / false")
+        return kind(value)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"setting {name}: cannot use {value!r} ({exc})") from exc
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """One ``--flag`` per setting (repeatable for lists), and ``--config FILE``."""
+    parser.add_argument("--config", type=Path, metavar="FILE",
+                        help="a TOML file of settings (keys as the flags, with underscores); "
+                        "ARCF_SERVICE_* variables and flags override it")
+    for name, f in _FIELDS.items():
+        flag = "--" + name.replace("_", "-")
+        kind = _kind(name)
+        text = f.metadata.get("help") or None
+        if kind is tuple:
+            parser.add_argument(flag, action="append", help=text)
+        elif kind is bool:
+            parser.add_argument(flag, action=argparse.BooleanOptionalAction, help=text)
+        else:
+            parser.add_argument(flag, type=kind, choices=f.metadata.get("choices"), help=text)
+
+
+def from_arguments(args: argparse.Namespace, env: dict[str, str] | None = None
+                   ) -> ServiceSettings:
+    """The settings of parsed ``add_arguments`` flags, over the config file and variables."""
+    flags = {name: getattr(args, name, None) for name in _FIELDS}
+    return ServiceSettings.from_sources(config=args.config, env=env, **flags)
