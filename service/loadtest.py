@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from .scrape import scrape
+from .settings import ZENOH_SHORT_FLAGS
 
 
 @dataclass
@@ -534,7 +535,8 @@ def plot_sweep(reports: list[dict[str, Any]], path: Path) -> Path:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="arcf-loadtest", description=__doc__.splitlines()[0])
-    ap.add_argument("--connect", action="append", help="service endpoint(s)")
+    ap.add_argument(ZENOH_SHORT_FLAGS["connect"], "--connect", action="append",
+                    metavar="ENDPOINT", help="the service's Zenoh endpoint(s) (repeatable)")
     ap.add_argument("--spawn-service", action="store_true",
                     help="start an arcf-service on a free loopback port for the run")
     ap.add_argument("--metrics-url", help="the service's /metrics URL (scraped before/after)")

@@ -16,17 +16,13 @@ import argparse
 import signal
 import sys
 import threading
-from pathlib import Path
 
-from .transport import open_session
+from .transport import add_zenoh_arguments, open_session
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="arcf-router", description=__doc__.splitlines()[0])
-    ap.add_argument("--listen", action="append", help="endpoint (repeatable); default "
-                    "tcp/127.0.0.1:7447")
-    ap.add_argument("--connect", action="append", help="other routers (repeatable)")
-    ap.add_argument("--zenoh-config", type=Path, help="Zenoh JSON5 config file")
+    add_zenoh_arguments(ap, listen_default="tcp/127.0.0.1:7447")
     args = ap.parse_args(argv)
     listen = args.listen or ["tcp/127.0.0.1:7447"]
     stop = threading.Event()

@@ -14,6 +14,10 @@ import tomllib
 
 ENV_PREFIX = "ARCF_SERVICE_"
 
+#: zenoh-python's examples' flags, shared by every command that opens a Zenoh session:
+#: ``-m`` mode, ``-e`` connect endpoint, ``-l`` listen endpoint, ``-c`` Zenoh config file.
+ZENOH_SHORT_FLAGS = {"mode": "-m", "connect": "-e", "listen": "-l", "zenoh_config": "-c"}
+
 
 def _about(help: str, choices: tuple[str, ...] | None = None,
            kind: type | None = None) -> dict[str, Any]:
@@ -170,24 +174,28 @@ def _convert(name: str, value: object) -> object:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """One ``--flag`` per setting (repeatable for lists), and ``--config FILE``."""
-    parser.add_argument("--config", type=Path, metavar="FILE",
+    """One ``--flag`` per setting (repeatable for lists; the Zenoh ones also with the short
+    names of zenoh-python's examples, ``-m -e -l -c``), and ``--settings FILE``."""
+    parser.add_argument("--settings", type=Path, metavar="FILE",
                         help="a TOML file of settings (keys as the flags, with underscores); "
                         "ARCF_SERVICE_* variables and flags override it")
     for name, f in _FIELDS.items():
-        flag = "--" + name.replace("_", "-")
+        flags = [ZENOH_SHORT_FLAGS[name]] if name in ZENOH_SHORT_FLAGS else []
+        flags.append("--" + name.replace("_", "-"))
         kind = _kind(name)
         text = f.metadata.get("help") or None
         if kind is tuple:
-            parser.add_argument(flag, action="append", help=text)
+            parser.add_argument(*flags, dest=name, action="append", help=text)
         elif kind is bool:
-            parser.add_argument(flag, action=argparse.BooleanOptionalAction, help=text)
+            parser.add_argument(*flags, dest=name, action=argparse.BooleanOptionalAction,
+                                help=text)
         else:
-            parser.add_argument(flag, type=kind, choices=f.metadata.get("choices"), help=text)
+            parser.add_argument(*flags, dest=name, type=kind, choices=f.metadata.get("choices"),
+                                help=text)
 
 
 def from_arguments(args: argparse.Namespace, env: dict[str, str] | None = None
                    ) -> ServiceSettings:
     """The settings of parsed ``add_arguments`` flags, over the config file and variables."""
     flags = {name: getattr(args, name, None) for name in _FIELDS}
-    return ServiceSettings.from_sources(config=args.config, env=env, **flags)
+    return ServiceSettings.from_sources(config=args.settings, env=env, **flags)

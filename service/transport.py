@@ -5,8 +5,27 @@ from __future__ import annotations
 import json
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import zenoh
+
+from .settings import ZENOH_SHORT_FLAGS
+
+
+def add_zenoh_arguments(parser: Any, *, listen_default: str = "", mode: bool = False) -> None:
+    """The Zenoh flags of a command that is not ``arcf-service`` (whose flags come from its
+    settings, with the same short names): ``-e/--connect``, ``-l/--listen``, ``-c/--zenoh-config``
+    and, with ``mode``, ``-m/--mode``."""
+    if mode:
+        parser.add_argument(ZENOH_SHORT_FLAGS["mode"], "--mode", choices=("peer", "client"),
+                            help="Zenoh mode (default: client)")
+    parser.add_argument(ZENOH_SHORT_FLAGS["connect"], "--connect", action="append",
+                        metavar="ENDPOINT", help="Zenoh endpoint to connect to (repeatable)")
+    parser.add_argument(ZENOH_SHORT_FLAGS["listen"], "--listen", action="append",
+                        metavar="ENDPOINT", help="Zenoh endpoint to listen on (repeatable)"
+                        + (f"; default {listen_default}" if listen_default else ""))
+    parser.add_argument(ZENOH_SHORT_FLAGS["zenoh_config"], "--zenoh-config", type=Path,
+                        metavar="FILE", help="Zenoh JSON5 config file")
 
 
 def make_config(

@@ -34,13 +34,13 @@ def test_config_file_then_variables_then_flags(tmp_path: Path) -> None:
     config = tmp_path / "arcf.toml"
     config.write_text('max_stream_fps = 12.5\nframe_queue = 3\nconnect = ["tcp/10.0.0.1:7447"]\n'
                       'mode = "client"\nlease_ms = 2500\n')
-    s = parse(["--config", str(config)])
+    s = parse(["--settings", str(config)])
     assert (s.max_stream_fps, s.frame_queue, s.connect, s.mode, s.lease_ms) == (
         12.5, 3, ("tcp/10.0.0.1:7447",), "client", 2500)
-    s = parse(["--config", str(config)], env={"ARCF_SERVICE_FRAME_QUEUE": "4",
+    s = parse(["--settings", str(config)], env={"ARCF_SERVICE_FRAME_QUEUE": "4",
                                                "ARCF_SERVICE_CONNECT": "tcp/a:1, tcp/b:2"})
     assert s.frame_queue == 4 and s.connect == ("tcp/a:1", "tcp/b:2")
-    s = parse(["--config", str(config), "--frame-queue", "5", "--connect", "tcp/c:3",
+    s = parse(["--settings", str(config), "--frame-queue", "5", "--connect", "tcp/c:3",
                "--connect", "tcp/d:4", "--worker-start-s", "30"],
               env={"ARCF_SERVICE_FRAME_QUEUE": "4"})
     assert (s.frame_queue, s.connect, s.worker_start_s, s.max_stream_fps) == (
@@ -59,9 +59,9 @@ def test_a_bad_config_file_is_refused_with_the_reason(tmp_path: Path, text: str,
     config = tmp_path / "bad.toml"
     config.write_text(text)
     with pytest.raises(ValueError, match=words.replace("[", r"\[").replace("]", r"\]")):
-        parse(["--config", str(config)])
+        parse(["--settings", str(config)])
     with pytest.raises(ValueError, match="config file"):
-        parse(["--config", str(tmp_path / "missing.toml")])
+        parse(["--settings", str(tmp_path / "missing.toml")])
 
 
 def test_a_bad_variable_is_refused() -> None:
@@ -79,3 +79,18 @@ def test_health_check_reads_the_services_variables(monkeypatch: pytest.MonkeyPat
     monkeypatch.setenv("ARCF_SERVICE_METRICS_PORT", "nine")
     assert health_main() == 1
     assert "setting metrics_port" in capsys.readouterr().out
+
+
+def test_zenoh_flags_follow_the_zenoh_python_examples(tmp_path: Path) -> None:
+    """``-m -e -l -c`` as in zenoh-python's examples, for the service and the router alike."""
+    config = tmp_path / "zenoh.json5"
+    config.write_text("{}")
+    s = parse(["-m", "client", "-e", "tcp/10.0.0.2:7447", "-e", "tcp/10.0.0.3:7447",
+               "-l", "tcp/127.0.0.1:7448", "-c", str(config)])
+    assert (s.mode, s.connect, s.listen, s.zenoh_config) == (
+        "client", ("tcp/10.0.0.2:7447", "tcp/10.0.0.3:7447"), ("tcp/127.0.0.1:7448",), config)
+    from service.router import main as router_main
+
+    with pytest.raises(SystemExit) as info:  # parsed, then refused: a mode is not a router's
+        router_main(["-m", "peer"])
+    assert info.value.code == 2
