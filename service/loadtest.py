@@ -30,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from .decoding import decode_compressed
 from .scrape import scrape
 from .settings import ZENOH_SHORT_FLAGS
 
@@ -136,12 +137,11 @@ def time_breakdown(delta: dict[str, float]) -> dict[str, float]:
 
 def _offline(preset: str, seq: Any, data: list[bytes]) -> tuple[float, float]:
     """The library alone, in this process, on the same JPEG bytes: (P@20, AUC)."""
-    import cv2
 
     import arcf
     from arcf.eval import score_sequence
 
-    frames = (cv2.imdecode(np.frombuffer(d, np.uint8), cv2.IMREAD_UNCHANGED) for d in data)
+    frames = (decode_compressed(d) for d in data)  # as a worker decodes them
     run = arcf.run_sequence(arcf.create_tracker(preset), frames, seq.init_box)
     sc = score_sequence(run.boxes, seq.groundtruth[: len(data)])
     return sc.precision20, sc.auc
@@ -157,13 +157,12 @@ def _library_loop(preset: str, items: list[tuple[tuple[float, ...], list[bytes]]
     cv2.setNumThreads(1)  # as in a service worker: one core per process
     tracker = arcf.create_tracker(preset)
     box, data = items[0]
-    tracker.init(cv2.imdecode(np.frombuffer(data[0], np.uint8), cv2.IMREAD_UNCHANGED), box)
+    tracker.init(decode_compressed(data[0]), box)
     start.wait()  # all processes start timing together, after their imports and warm-up
     frames, t0 = 0, time.perf_counter()
     while time.perf_counter() - t0 < seconds:
         for box, data in items:
-            decoded = (cv2.imdecode(np.frombuffer(d, np.uint8), cv2.IMREAD_UNCHANGED)
-                       for d in data)
+            decoded = (decode_compressed(d) for d in data)  # as a worker decodes them
             for _ in arcf.track_frames(tracker, decoded, box):
                 frames += 1
                 if time.perf_counter() - t0 >= seconds:

@@ -19,7 +19,6 @@ from typing import Any
 
 import cv2
 import numpy as np
-import simplejpeg
 
 from arcf import ARCFError, create_tracker, warm_up
 from schemas import (
@@ -41,7 +40,7 @@ from .commands import (
     StartSession,
     StopSession,
 )
-from .imagecheck import image_size
+from .decoding import decode_image
 
 log = logging.getLogger("arcf.service.worker")
 
@@ -128,65 +127,6 @@ def _warm_up() -> None:
             t.update(frame)
         except Exception:  # e.g. no Color Names table here: that preset warms on first use
             log.debug("warm-up of %s skipped", name, exc_info=True)
-
-
-def _decode_jpeg(payload: bytes) -> np.ndarray | None:
-    """A YCbCr (colour) or grey JPEG decoded by simplejpeg, or None to leave it to OpenCV.
-
-    Why: both wrap libjpeg-turbo with its default (accurate) IDCT and upsampling and give the
-    same pixels (tests/test_imagecheck.py), but simplejpeg decodes the benchmark's 1280x720
-    frames in 2.0 ms where ``cv2.imdecode`` takes 4.7 (docs/benchmarks.md §3), a third of a
-    tracked frame's cost. Anything else (CMYK, a header or stream simplejpeg refuses,
-    truncated data) goes to ``cv2.imdecode`` as before, which decodes it or reports it.
-    """
-    try:
-        colorspace = simplejpeg.decode_jpeg_header(payload)[2]
-        if colorspace == "YCbCr":
-            return simplejpeg.decode_jpeg(payload, colorspace="BGR")
-        if colorspace == "Gray":
-            return simplejpeg.decode_jpeg(payload, colorspace="GRAY")[..., 0]
-    except (ValueError, TypeError):  # refused: OpenCV decides
-        pass
-    return None
-
-
-def decode_image(frame: Any, max_pixels: int | None = None
-                 ) -> tuple[np.ndarray | None, tuple[ErrorCode, str] | None]:
-    """The frame's pixels as uint8 BGR or gray, or (None, (error code, message)).
-
-    Compressed images are sized from their header first: more than ``max_pixels`` is refused
-    before ``cv2.imdecode`` allocates anything (a decompression bomb costs nothing)."""
-    data = np.frombuffer(frame.payload, dtype=np.uint8)
-    if frame.encoding in ("jpeg", "png"):
-        if max_pixels is not None:
-            size = image_size(frame.payload)
-            if size is None:
-                return None, (ErrorCode.DECODE_ERROR, f"not a readable {frame.encoding} header")
-            if size[0] * size[1] > max_pixels:
-                return None, (ErrorCode.IMAGE_TOO_LARGE,
-                              f"{frame.encoding} declares {size[0]}x{size[1]} = "
-                              f"{size[0] * size[1]} pixels; the limit is {max_pixels}")
-        image = _decode_jpeg(frame.payload) if frame.encoding == "jpeg" else None
-        if image is not None:
-            return image, None
-        try:
-            image = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
-        except cv2.error as exc:  # e.g. an empty buffer: OpenCV asserts instead of failing
-            return None, (ErrorCode.DECODE_ERROR, f"cannot decode {frame.encoding} frame: "
-                          f"{str(exc).strip().splitlines()[-1]}")
-        if image is None:
-            return None, None
-        if image.dtype != np.uint8:
-            image = cv2.convertScaleAbs(image, alpha=255.0 / max(float(image.max()), 1.0))
-        if image.ndim == 3 and image.shape[2] == 4:
-            image = cv2.cvtColor(image, cv2.COLOR_BGRA2BGR)
-        return image, None
-    if max_pixels is not None and frame.width * frame.height > max_pixels:
-        return None, (ErrorCode.IMAGE_TOO_LARGE,
-                      f"{frame.width}x{frame.height} exceeds {max_pixels} pixels")
-    channels = 3 if frame.encoding == "bgr8" else 1
-    image = data.reshape(frame.height, frame.width, channels)
-    return (image if channels == 3 else image[..., 0]), None
 
 
 class Worker:

@@ -30,8 +30,8 @@ from schemas import (
     decode,
     encode,
 )
+from service.decoding import decode_image
 from service.imagecheck import image_size
-from service.worker import decode_image
 
 FAST = settings(max_examples=1000, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 SLOW = settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])

@@ -25,6 +25,7 @@ from arcf.data import data_root
 from arcf.eval import load_dataset
 from schemas import KeySpace
 from service.client import ServiceError, TrackingClient
+from service.decoding import decode_compressed
 
 pytestmark = [pytest.mark.integration,
               pytest.mark.skipif(not (data_root() / "uav123_10fps").is_dir(),
@@ -47,10 +48,9 @@ def frames():
 
 
 def _offline(preset: str, data: list[bytes], box) -> np.ndarray:
-    t = arcf.create_tracker(preset)
-    images = [cv2.imdecode(np.frombuffer(d, np.uint8), cv2.IMREAD_UNCHANGED) for d in data]
-    boxes = [t.init(images[0], box).box] + [t.update(im).box for im in images[1:]]
-    return np.array(boxes)
+    """The library alone on the same bytes, decoded as a worker decodes them."""
+    frames = (decode_compressed(d) for d in data)
+    return arcf.run_sequence(arcf.create_tracker(preset), frames, box).boxes
 
 
 def _lockstep(client, streams: dict[str, tuple[object, int]], data: list[bytes]) -> dict:

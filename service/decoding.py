@@ -1,0 +1,89 @@
+"""Frame decoding: the service's, and the one its load tools and tests compare against.
+
+``decode_image`` turns a wire ``Frame`` into pixels or a refusal (sizes checked from the
+header first); ``decode_compressed`` is its decoder for JPEG / PNG bytes alone, which the
+load tools' library reference and the benchmarks use too, so that "the library alone" decodes
+exactly as a worker does.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import cv2
+import numpy as np
+import simplejpeg
+
+from schemas import ErrorCode
+
+from .imagecheck import image_size
+
+
+def decode_compressed(payload: bytes) -> np.ndarray:
+    """JPEG or PNG bytes as uint8 BGR ``(H, W, 3)`` or grey ``(H, W)`` pixels, as a worker
+    decodes them (simplejpeg for YCbCr / grey JPEG, OpenCV for the rest; deeper PNGs scaled
+    to 8 bits, alpha dropped). Raises ``ValueError`` when the bytes are not an image."""
+    image = _decode_jpeg(payload)
+    if image is not None:
+        return image
+    try:
+        image = cv2.imdecode(np.frombuffer(payload, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
+    except cv2.error as exc:  # e.g. an empty buffer: OpenCV asserts instead of failing
+        raise ValueError(str(exc).strip().splitlines()[-1]) from exc
+    if image is None:
+        raise ValueError("not a decodable image")
+    if image.dtype != np.uint8:
+        image = cv2.convertScaleAbs(image, alpha=255.0 / max(float(image.max()), 1.0))
+    if image.ndim == 3 and image.shape[2] == 4:
+        image = cv2.cvtColor(image, cv2.COLOR_BGRA2BGR)
+    return image
+
+
+def _decode_jpeg(payload: bytes) -> np.ndarray | None:
+    """A YCbCr (colour) or grey JPEG decoded by simplejpeg, or None to leave it to OpenCV.
+
+    Why: both wrap libjpeg-turbo with its default (accurate) IDCT and upsampling and give the
+    same pixels (tests/test_imagecheck.py), but simplejpeg decodes the benchmark's 1280x720
+    frames in 2.0 ms where ``cv2.imdecode`` takes 4.7 (docs/benchmarks.md §3), a third of a
+    tracked frame's cost. Anything else (CMYK, a header or stream simplejpeg refuses,
+    truncated data) goes to ``cv2.imdecode`` as before, which decodes it or reports it.
+    """
+    try:
+        colorspace = simplejpeg.decode_jpeg_header(payload)[2]
+        if colorspace == "YCbCr":
+            return simplejpeg.decode_jpeg(payload, colorspace="BGR")
+        if colorspace == "Gray":
+            return simplejpeg.decode_jpeg(payload, colorspace="GRAY")[..., 0]
+    except (ValueError, TypeError):  # refused: OpenCV decides
+        pass
+    return None
+
+
+def decode_image(frame: Any, max_pixels: int | None = None
+                 ) -> tuple[np.ndarray | None, tuple[ErrorCode, str] | None]:
+    """The frame's pixels as uint8 BGR or gray, or (None, (error code, message)).
+
+    Compressed images are sized from their header first: more than ``max_pixels`` is refused
+    before ``cv2.imdecode`` allocates anything (a decompression bomb costs nothing)."""
+    data = np.frombuffer(frame.payload, dtype=np.uint8)
+    if frame.encoding in ("jpeg", "png"):
+        if max_pixels is not None:
+            size = image_size(frame.payload)
+            if size is None:
+                return None, (ErrorCode.DECODE_ERROR, f"not a readable {frame.encoding} header")
+            if size[0] * size[1] > max_pixels:
+                return None, (ErrorCode.IMAGE_TOO_LARGE,
+                              f"{frame.encoding} declares {size[0]}x{size[1]} = "
+                              f"{size[0] * size[1]} pixels; the limit is {max_pixels}")
+        try:
+            return decode_compressed(frame.payload), None
+        except ValueError as exc:
+            return None, (ErrorCode.DECODE_ERROR, f"cannot decode {frame.encoding} frame: {exc}")
+    if max_pixels is not None and frame.width * frame.height > max_pixels:
+        return None, (ErrorCode.IMAGE_TOO_LARGE,
+                      f"{frame.width}x{frame.height} exceeds {max_pixels} pixels")
+    channels = 3 if frame.encoding == "bgr8" else 1
+    image = data.reshape(frame.height, frame.width, channels)
+    return (image if channels == 3 else image[..., 0]), None
+
+
