@@ -32,7 +32,6 @@ from pathlib import Path
 from typing import Any
 
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
 
 from service.loadtest import passes, run_load  # noqa: E402
 from service.procs import ServiceProcess  # noqa: E402

@@ -31,7 +31,6 @@ from pathlib import Path
 from typing import Any
 
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
 
 from arcf.eval import load_dataset  # noqa: E402
 from service.client import TrackingClient  # noqa: E402

@@ -55,12 +55,10 @@ def worker(job_file: str, tracker_name: str, threads: str, profile: bool,
             tracker.update(f)
         seconds = time.perf_counter() - t0
     else:
-        sys.path.insert(0, str(ROOT))
         import arcf
 
         kernels = arcf.warm_up()
         if stages:
-            sys.path.insert(0, str(ROOT / "benchmarks"))
             import stages as stage_timing
 
             timer = stage_timing.instrument()
@@ -135,7 +133,6 @@ def main() -> int:
                stages=bool(os.environ.get("ARCF_STAGES")))
         return 0
 
-    sys.path.insert(0, str(ROOT))
     from arcf.data import data_root
     from arcf.eval import load_dataset
 
@@ -250,7 +247,6 @@ def main() -> int:
 
 def print_stages(stage_runs: dict[str, list[tuple[int, dict]]]) -> None:
     """Per-tracker table: ms per frame of each stage over all frames, share, floor."""
-    sys.path.insert(0, str(ROOT / "benchmarks"))
     from stages import STAGES
 
     print(f"Machine: {os.cpu_count()} CPUs (`nproc`), {cpu_model()}; single-threaded; stage "
