@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from .loadtest import _percentiles, _process_tree
+from .loadtest import _percentiles, _process_tree, meets_capacity
 from .scrape import scrape
 
 GOLDEN = 0.6180339887498949
@@ -278,8 +278,8 @@ def _metrics_delta(before: dict[str, float], metrics_url: str | None) -> dict[st
 
 # --------------------------------------------------------------------------- overload
 def passes(stats: dict[str, Any], p99_ms: float) -> bool:
-    """The capacity criterion: p99 latency under the bound and not a single frame dropped."""
-    return stats["results"] > 0 and stats["dropped"] == 0 and stats["latency_ms"]["p99"] < p99_ms
+    """``meets_capacity`` of a fleet window's statistics."""
+    return meets_capacity(stats["results"], stats["dropped"], stats["latency_ms"]["p99"], p99_ms)
 
 
 def find_capacity(fleet: Fleet, *, p99_ms: float = 100.0, step_s: float = 10.0,
