@@ -325,9 +325,10 @@ class ARCFTracker:
         grid = (sz // cell, sz // cell)
         cells = np.floor(np.asarray(sizing.target_size) / cell)
         sigma = math.sqrt(max(float(np.prod(cells)), 1.0)) * p.output_sigma_factor
+        filter_size = (int(np.clip(cells[0], 1, grid[0])), int(np.clip(cells[1], 1, grid[1])))
+        scale_filter: DSSTScaleFilter | None = None
         if p.scale_mode == "search":  # joint search over n_scales scales (ARCF-H, BACF)
-            factors, step, scale_filter = search_scale_factors(p.n_scales, p.scale_step), \
-                p.scale_step, None
+            factors, step = search_scale_factors(p.n_scales, p.scale_step), p.scale_step
         else:  # DSST's separate 1-D scale filter (ARCF-HC)
             factors, step = np.ones(1), p.scale_filter.scale_step
             scale_filter = DSSTScaleFilter(
@@ -349,15 +350,14 @@ class ARCFTracker:
             initial_scale=sizing.scale_factor,
             cell_px=(sz / grid[0], sz / grid[1]),
             sigma=sigma,
-            filter_size=(int(np.clip(cells[0], 1, grid[0])), int(np.clip(cells[1], 1, grid[1]))),
+            filter_size=filter_size,
             psr_radius=max(2, math.ceil(3 * sigma)),
             scale_factors=factors,
             min_scale=min_scale,
             max_scale=max_scale,
             window=hann2d(grid),
             yf=self._fwd(gaussian_label(grid, sigma)),
-            crop=Crop(grid, (int(np.clip(cells[0], 1, grid[0])),
-                             int(np.clip(cells[1], 1, grid[1])))),
+            crop=Crop(grid, filter_size),
             extractor=extractor,
         )
         return layout, sizing, scale_filter

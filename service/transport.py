@@ -12,13 +12,10 @@ import zenoh
 from .settings import ZENOH_SHORT_FLAGS
 
 
-def add_zenoh_arguments(parser: Any, *, listen_default: str = "", mode: bool = False) -> None:
+def add_zenoh_arguments(parser: Any, *, listen_default: str = "") -> None:
     """The Zenoh flags of a command that is not ``arcf-service`` (whose flags come from its
-    settings, with the same short names): ``-e/--connect``, ``-l/--listen``, ``-c/--zenoh-config``
-    and, with ``mode``, ``-m/--mode``."""
-    if mode:
-        parser.add_argument(ZENOH_SHORT_FLAGS["mode"], "--mode", choices=("peer", "client"),
-                            help="Zenoh mode (default: client)")
+    settings, with the same short names): ``-e/--connect``, ``-l/--listen``,
+    ``-c/--zenoh-config``."""
     parser.add_argument(ZENOH_SHORT_FLAGS["connect"], "--connect", action="append",
                         metavar="ENDPOINT", help="Zenoh endpoint to connect to (repeatable)")
     parser.add_argument(ZENOH_SHORT_FLAGS["listen"], "--listen", action="append",
