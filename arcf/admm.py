@@ -150,7 +150,7 @@ def h_step(spectrum: np.ndarray, crop: Crop, scale: float, hermitian: bool) -> n
     first pass only on the rows (real transforms) or columns (complex) that are not zero. Each
     pass is the one SciPy's 2-D transform runs, in its order and with its normalisation at its
     place (pocketfft scales the last pass of a real inverse, the first of a complex one, by
-    ``float32(1 / HW)``), so ĥ is the same to the bit (``tests/test_admm.py``), in 0.75-0.8 of
+    ``float32(1 / HW)``), so ĥ is the same to the bit (``tests/arcf/test_admm.py``), in 0.75-0.8 of
     the time on the trackers' crops.
     """
     (height, width), (rows, cols) = crop.grid, crop.slices
@@ -241,7 +241,7 @@ def _power_sum(x, out):  # pragma: no cover - compiled
     """``out = Σ_d |x̂_d|²`` over the channels of a complex64 ``(D, H, W')`` block, as
     ``np.einsum("dhw,dhw->hw", conj(x), x).real`` computes it: each product's real part
     ``xr xr - (-xi) xi`` in float32, summed over the channels in order from 0 (the same bits,
-    checked in tests/test_admm.py; a tenth of einsum's time)."""
+    checked in tests/arcf/test_admm.py; a tenth of einsum's time)."""
     n_d = x.shape[0]
     n_k = x.shape[1] * x.shape[2]
     xs = x.reshape(n_d, n_k)

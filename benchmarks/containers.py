@@ -21,22 +21,18 @@ import os
 import subprocess
 import sys
 import time
-from collections import defaultdict
 from pathlib import Path
 from statistics import median
-from types import SimpleNamespace
 from typing import Any
 
+from arcf.data import data_root
+from arcf.eval import load_dataset
+from loadtools.driver import Clip, Fleet, Pacing
+from loadtools.procs import free_port
+from service.client import TrackingClient
+from service.cluster import owner
+
 ROOT = Path(__file__).resolve().parent.parent
-
-import threading  # noqa: E402
-
-from scaleout import Fleet, gaps  # noqa: E402
-
-from arcf.data import data_root  # noqa: E402
-from arcf.eval import load_dataset  # noqa: E402
-from service.cluster import owner  # noqa: E402
-from service.procs import free_port  # noqa: E402
 
 DEPLOY = ROOT / "deploy"
 INSTANCES = ("arcf-1", "arcf-2")
@@ -71,28 +67,15 @@ class Compose:
         raise RuntimeError(f"{services} not healthy within {timeout} s")
 
 
-class ContainerFleet(Fleet):
-    """scaleout.Fleet's streams and measurements, with the compose stack as the instances."""
-
-    def __init__(self, args: argparse.Namespace, seq: Any, router_port: int) -> None:
-        self.args = args
-        self.seq = seq
-        self.frames = [p.read_bytes() for p in seq.frames]
-        self.router = SimpleNamespace(endpoint=f"tcp/127.0.0.1:{router_port}",
-                                      stop=lambda: None)
-        self.instances = {}
-        self.results: dict[str, list[tuple[Any, float]]] = defaultdict(list)
-        self.lock = threading.Lock()
-        self.stop = threading.Event()
-        self.client = None
-
-
 def trials(args: argparse.Namespace, compose: Compose, router_port: int) -> list[dict[str, Any]]:
     seq = load_dataset("uav123_10fps", sequences=["truck4_1"])[0]
-    fleet = ContainerFleet(args, seq, router_port)
     rows = []
-    try:
-        streams = fleet.start_streams()
+    with TrackingClient(connect=[f"tcp/127.0.0.1:{router_port}"]) as client, \
+            Fleet(client, [Clip.of(seq)], preset=args.preset, prefix="cam",
+                  pacing=Pacing.fixed_rate(args.fps, aligned=True)) as fleet:
+        fleet.add(args.streams, frames=int(args.max_seconds * args.fps),
+                  session_id=lambda stream, _: f"s-{stream}")
+        streams = [st.name for st in fleet.live]
         time.sleep(4.0)
         for trial in range(args.trials):
             for how in ("kill", "pause"):
@@ -103,34 +86,18 @@ def trials(args: argparse.Namespace, compose: Compose, router_port: int) -> list
                 cid = compose.container(victim)
                 t0 = time.monotonic()
                 subprocess.run(["docker", how, cid], check=True, capture_output=True)
-                found = fleet.resumed_after(owned, t0, timeout=15)
-                time.sleep(1.5)
-                rows.append({"trial": trial, "event": f"docker {how}", "streams_moved": len(owned),
-                             "resumed": len(found),
-                             "failover_ms": [1e3 * (found[n] - t0) for n in owned if n in found],
-                             "handovers": [fleet.handover(n, found[n]) for n in owned
-                                           if n in found],
-                             "other_streams_gaps": sum(gaps(fleet.results[n], t0 - 1.0,
-                                                            time.monotonic()) for n in others)})
+                rows.append({"trial": trial, "event": f"docker {how}",
+                             **fleet.ledger.after_move(owned, others, t0, timeout=15)})
                 print(json.dumps(rows[-1]), file=sys.stderr)
                 t0 = time.monotonic()
                 if how == "kill":
                     compose("start", victim)
                 else:
                     subprocess.run(["docker", "unpause", cid], check=True, capture_output=True)
-                found = fleet.resumed_after(owned, t0, timeout=60)
-                time.sleep(1.5)
                 rows.append({"trial": trial, "event": "start" if how == "kill" else "unpause",
-                             "streams_moved": len(owned), "resumed": len(found),
-                             "failover_ms": [1e3 * (found[n] - t0) for n in owned if n in found],
-                             "handovers": [fleet.handover(n, found[n]) for n in owned
-                                           if n in found],
-                             "other_streams_gaps": sum(gaps(fleet.results[n], t0,
-                                                            time.monotonic()) for n in others)})
+                             **fleet.ledger.after_move(owned, others, t0, timeout=60)})
                 print(json.dumps(rows[-1]), file=sys.stderr)
                 compose.wait_healthy(INSTANCES)
-    finally:
-        fleet.close()
     return rows
 
 

@@ -24,11 +24,10 @@ import time
 from pathlib import Path
 from typing import Any
 
-ROOT = Path(__file__).resolve().parent.parent
-
-from service.client import TrackingClient  # noqa: E402
-from service.procs import ServiceProcess  # noqa: E402
-from service.stress import machine, run_overload  # noqa: E402
+from loadtools.procs import ServiceProcess
+from loadtools.stress import run_overload
+from loadtools.system import machine
+from service.client import TrackingClient
 
 
 def main() -> int:
@@ -59,7 +58,7 @@ def main() -> int:
                 try:
                     with TrackingClient(connect=[svc.endpoint]) as client:
                         r = run_overload(
-                            client, [seq], service_pid=svc.proc.pid,
+                            client, [seq], service_pid=svc.pid,
                             metrics_url=svc.metrics_url, preset=preset, fps=fps,
                             factor=args.factor, phase_s=args.phase, step_s=args.step,
                             p99_ms=args.p99_ms, window=args.window,

@@ -13,53 +13,38 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
-import socket
-import subprocess
-import sys
 import time
-from pathlib import Path
 
 import cv2
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
+import arcf
+from arcf.eval import load_dataset
+from loadtools.driver import Clip, Fleet, Pacing
+from loadtools.procs import ServiceProcess
+from loadtools.system import cpu_model
+from service.client import TrackingClient
+from service.decoding import decode_compressed
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def library(preset: str, data: list[bytes], box) -> np.ndarray:  # type: ignore[no-untyped-def]
-    import arcf
-    from service.decoding import decode_compressed
-
-    # decode + track per frame: what a service worker does with a frame
+def library(preset: str, clip: Clip) -> np.ndarray:
+    """Seconds per frame of decode + track in this process: what a service worker does."""
     out, t0 = [], time.perf_counter()
-    frames = (decode_compressed(d) for d in data)  # as a worker decodes them
-    for _ in arcf.track_frames(arcf.create_tracker(preset), frames, box):
+    frames = (decode_compressed(d) for d in clip.frames)  # as a worker decodes them
+    for _ in arcf.track_frames(arcf.create_tracker(preset), frames, clip.box):
         out.append(time.perf_counter() - t0)
         t0 = time.perf_counter()
     return np.array(out)
 
 
-def through_service(endpoint: str, preset: str, stream: str, data: list[bytes],
-                    box) -> np.ndarray:  # type: ignore[no-untyped-def]
-    from service.client import TrackingClient
-
-    lat = []
-    with TrackingClient(connect=[endpoint]) as client:
-        results = client.results(stream)
-        ack = client.start(stream, box, preset=preset, frame_seq=0)
-        for i, d in enumerate(data):
-            client.publish_frame(stream, data=d, seq=i)
-            r = results.get(timeout=30)
-            lat.append((time.time_ns() - r.capture_ts_ns) / 1e9)
-        client.stop(ack.session_id)
-        results.close()
-    return np.array(lat)
+def through_service(client: TrackingClient, preset: str, clip: Clip) -> np.ndarray:
+    """Seconds from capture to result received, one frame in flight (lock-step)."""
+    with Fleet(client, [clip], preset=preset, pacing=Pacing.lock_step(),
+               prefix=preset) as fleet:
+        (stream,) = fleet.add(1, frames=len(clip))
+        fleet.wait_published(timeout=30.0 * len(clip))
+        fleet.settle(timeout=30)
+    return np.array([r.latency_s for r in stream.record.received])
 
 
 def main() -> int:
@@ -69,16 +54,11 @@ def main() -> int:
     ap.add_argument("--frames", type=int, default=100)
     args = ap.parse_args()
     cv2.setNumThreads(1)
-    from arcf.eval import load_dataset
-
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1")
-    proc = subprocess.Popen([sys.executable, "-m", "service.app", "--listen", endpoint,
-                             "--metrics-port", "-1"], stdout=subprocess.PIPE, text=True,
-                            cwd=ROOT, env=env)
-    assert proc.stdout is not None
-    print("#", proc.stdout.readline().strip(), file=sys.stderr)
-    print(f"Machine: {os.cpu_count()} CPUs, {platform.processor() or 'x86_64'}; lock-step replay, "
+    svc = ServiceProcess(workers=os.cpu_count() or 1, metrics=False, quiet=False,
+                         env={"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"})
+    client = TrackingClient(connect=[svc.endpoint])
+    print(f"# {svc.ready_line}")
+    print(f"Machine: {os.cpu_count()} CPUs, {cpu_model()}; lock-step replay, "
           "one frame in flight; times in ms per frame.\n")
     print("| preset | sequence | frames | library: decode + track, mean / p50 / p99 | "
           "through the service: capture -> result, mean / p50 / p99 | overhead, mean / p50 |")
@@ -87,20 +67,19 @@ def main() -> int:
         for spec in args.sequences.split(","):
             ds, name = spec.split(":")
             (seq,) = load_dataset(ds, sequences=[name])
-            data = [p.read_bytes() for p in seq.frames[: args.frames]]
+            clip = Clip.of(seq, limit=args.frames)
             for preset in args.presets.split(","):
-                lib = library(preset, data, seq.init_box) * 1e3
-                svc = through_service(endpoint, preset, f"{name}-{preset}", data,
-                                      seq.init_box) * 1e3
-                d = svc - lib
-                print(f"| {preset} | {name} | {len(data)} | {lib.mean():.1f} / "
+                lib = library(preset, clip) * 1e3
+                through = through_service(client, preset, clip) * 1e3
+                d = through - lib
+                print(f"| {preset} | {name} | {len(clip)} | {lib.mean():.1f} / "
                       f"{np.percentile(lib, 50):.1f} / {np.percentile(lib, 99):.1f} | "
-                      f"{svc.mean():.1f} / {np.percentile(svc, 50):.1f} / "
-                      f"{np.percentile(svc, 99):.1f} | {d.mean():.1f} / "
+                      f"{through.mean():.1f} / {np.percentile(through, 50):.1f} / "
+                      f"{np.percentile(through, 99):.1f} | {d.mean():.1f} / "
                       f"{np.percentile(d, 50):.1f} |", flush=True)
     finally:
-        proc.terminate()
-        proc.wait(timeout=20)
+        client.close()
+        svc.stop()
     return 0
 
 

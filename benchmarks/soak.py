@@ -25,11 +25,10 @@ import sys
 from pathlib import Path
 from typing import Any
 
-ROOT = Path(__file__).resolve().parent.parent
-
-from service.client import TrackingClient  # noqa: E402
-from service.procs import ServiceProcess  # noqa: E402
-from service.stress import machine, run_soak  # noqa: E402
+from loadtools.procs import ServiceProcess
+from loadtools.stress import run_soak
+from loadtools.system import machine
+from service.client import TrackingClient
 
 
 def main() -> int:
@@ -54,7 +53,7 @@ def main() -> int:
     svc = ServiceProcess(workers=os.cpu_count() or 1)
     try:
         with TrackingClient(connect=[svc.endpoint]) as client:
-            r = run_soak(client, seqs, service_pid=svc.proc.pid, metrics_url=svc.metrics_url,
+            r = run_soak(client, seqs, service_pid=svc.pid, metrics_url=svc.metrics_url,
                          preset=args.preset, fps=args.fps, streams=args.streams,
                          duration_s=60 * args.minutes, warmup_s=args.warmup,
                          lifetime_s=(life[0], life[1]), sample_s=args.sample,

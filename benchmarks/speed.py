@@ -94,16 +94,6 @@ def worker(job_file: str, tracker_name: str, threads: str, profile: bool,
 
 
 # ----------------------------------------------------------------------------- orchestrator
-def cpu_model() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
-
-
 def setup_csrt(venv: Path) -> Path:
     py = venv / "bin" / "python"
     if not py.exists():
@@ -203,6 +193,8 @@ def main() -> int:
     if args.stages:
         print_stages(stage_runs)
         return 0
+    from loadtools.system import cpu_model  # here: the CSRT workers' environment lacks it
+
     print(f"Machine: {os.cpu_count()} CPUs (`nproc`), {cpu_model()}; Python "
           f"{platform.python_version()}. FPS = frames / (init + update seconds), frames decoded "
           "beforehand; arcf's Numba kernels are loaded before timing (the service does so when "
@@ -248,6 +240,8 @@ def main() -> int:
 def print_stages(stage_runs: dict[str, list[tuple[int, dict]]]) -> None:
     """Per-tracker table: ms per frame of each stage over all frames, share, floor."""
     from stages import STAGES
+
+    from loadtools.system import cpu_model
 
     print(f"Machine: {os.cpu_count()} CPUs (`nproc`), {cpu_model()}; single-threaded; stage "
           "times are exclusive (a stage called inside another is charged to itself); floors "

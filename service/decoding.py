@@ -43,7 +43,7 @@ def _decode_jpeg(payload: bytes) -> np.ndarray | None:
     """A YCbCr (colour) or grey JPEG decoded by simplejpeg, or None to leave it to OpenCV.
 
     Why: both wrap libjpeg-turbo with its default (accurate) IDCT and upsampling and give the
-    same pixels (tests/test_imagecheck.py), but simplejpeg decodes the benchmark's 1280x720
+    same pixels (tests/service/test_imagecheck.py), but simplejpeg decodes the benchmark's 1280x720
     frames in 2.0 ms where ``cv2.imdecode`` takes 4.7 (docs/benchmarks.md §3), a third of a
     tracked frame's cost. Anything else (CMYK, a header or stream simplejpeg refuses,
     truncated data) goes to ``cv2.imdecode`` as before, which decodes it or reports it.

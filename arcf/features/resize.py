@@ -8,7 +8,7 @@ re-reads the value it stored one iteration earlier, so it runs at the latency of
 and an add per source pixel and channel.
 
 This module computes the same sums in the same order with the same float32 roundings, so the
-result is identical (checked against ``cv2.resize`` in tests/test_resize.py): each
+result is identical (checked against ``cv2.resize`` in tests/arcf/test_resize.py): each
 destination column's partial sum lives in a register while its source pixels are added, and
 several source rows are summed side by side so that the additions of different rows overlap.
 Only the non-integer shrink is done here; integer ratios (OpenCV's separate integer "fast area"

@@ -13,259 +13,34 @@
   for a long time, with the service's memory sampled throughout: it must not grow beyond a
   small bound once warm.
 
-Both drive a :class:`Fleet` of streams that can be added and removed while the service runs.
-A stream replays the first ``window`` frames of a real sequence forth and back (a palindrome,
-so the target moves continuously and a session never has to be re-initialised at a wrap).
-Memory is read from ``/proc/<pid>/smaps_rollup`` for the service's whole process tree: the
-anonymous memory (where a leak would show; see :func:`memory_mb`), with PSS and RSS beside it.
+Both drive a :class:`~loadtools.driver.Fleet` of fixed-rate streams that are added and removed
+while the service runs. A stream replays the first ``window`` frames of a real sequence forth
+and back (a palindrome clip). Memory is sampled for the service's whole process tree
+(:class:`~loadtools.system.MemorySampler`: the anonymous memory, where a leak would show, with
+PSS and RSS beside it).
 """
 
 from __future__ import annotations
 
-import contextlib
-import itertools
-import os
 import random
-import threading
 import time
-from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from .loadtest import _percentiles, _process_tree, meets_capacity
-from .scrape import scrape
+from service.scrape import scrape
 
-GOLDEN = 0.6180339887498949
-
-
-# --------------------------------------------------------------------------- memory
-def memory_mb(pid: int) -> dict[str, float]:
-    """Memory of ``pid`` and its descendants (MB): anonymous, PSS and RSS, and how many
-    processes that is.
-
-    Anonymous memory (heap, NumPy arrays, Zenoh's buffers) is where a leak shows, and it is
-    the service's alone. PSS and RSS also count pages of shared libraries, and PSS splits those
-    between every process on the machine that maps them, so it moves when unrelated processes
-    start or stop: reported, but not what the bounds are checked on."""
-    out = {"anon_mb": 0.0, "pss_mb": 0.0, "rss_mb": 0.0}
-    fields = {"Anonymous:": "anon_mb", "Pss:": "pss_mb", "Rss:": "rss_mb"}
-    pids = _process_tree(pid)
-    for p in pids:
-        with contextlib.suppress(OSError, ValueError):
-            for line in Path(f"/proc/{p}/smaps_rollup").read_text().splitlines():
-                key = fields.get(line.split(" ", 1)[0])
-                if key:
-                    out[key] += int(line.split()[1]) / 1024
-    return {**out, "processes": float(len(pids))}
+from .driver import Clip, Fleet, Pacing, SimulatedStream
+from .ledger import meets_capacity
+from .system import MemorySampler
 
 
-class MemorySampler:
-    """Samples :func:`memory_mb` of a process tree every ``interval`` seconds, on a thread."""
-
-    COLUMNS = ("t", "anon_mb", "pss_mb", "rss_mb", "processes")
-
-    def __init__(self, pid: int, interval: float = 1.0) -> None:
-        self.pid, self.interval = pid, interval
-        #: rows of COLUMNS (t: monotonic seconds)
-        self.samples: list[tuple[float, float, float, float, float]] = []
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name="memory-sampler", daemon=True)
-
-    def start(self) -> MemorySampler:
-        self._thread.start()
-        return self
-
-    def _run(self) -> None:
-        while True:
-            m = memory_mb(self.pid)
-            self.samples.append((time.monotonic(), m["anon_mb"], m["pss_mb"], m["rss_mb"],
-                                 m["processes"]))
-            if self._stop.wait(self.interval):
-                return
-
-    def stop(self) -> None:
-        self._stop.set()
-        self._thread.join(timeout=5 + self.interval)
-
-    def between(self, t0: float, t1: float) -> np.ndarray:
-        """Samples in [t0, t1], one row per sample, columns as in COLUMNS."""
-        rows = [s for s in self.samples if t0 <= s[0] <= t1]
-        return np.asarray(rows, dtype=float).reshape(-1, len(self.COLUMNS))
-
-    def summary(self, t0: float, t1: float) -> dict[str, float]:
-        """Median, min and max anonymous memory in a window and its linear trend (MB per
-        minute); PSS median and RSS max for reference."""
-        rows = self.between(t0, t1)
-        if len(rows) == 0:
-            return {"samples": 0}
-        anon = rows[:, 1]
-        slope = float(np.polyfit(rows[:, 0], anon, 1)[0]) * 60 if len(rows) >= 3 else float("nan")
-        return {"samples": len(rows), "anon_median_mb": float(np.median(anon)),
-                "anon_min_mb": float(anon.min()), "anon_max_mb": float(anon.max()),
-                "anon_trend_mb_per_min": slope, "pss_median_mb": float(np.median(rows[:, 2])),
-                "rss_max_mb": float(rows[:, 3].max()), "processes": int(rows[:, 4].max())}
-
-
-# --------------------------------------------------------------------------- the fleet
-@dataclass
-class _SimulatedStream:
-    """One simulated drone of the fleet: its frames, sessions and what came back."""
-
-    name: str
-    index: int
-    frames: list[bytes]
-    box: tuple[float, ...]
-    sessions: list[str] = field(default_factory=list)
-    #: (frame seq, monotonic time sent)
-    sent: list[tuple[int, float]] = field(default_factory=list)
-    #: (session, frame seq, monotonic time received, latency s, dropped, status, track s, scale)
-    results: list[tuple[str, int, float, float, int, str, float, float]] = field(
-        default_factory=list)
-    stop: threading.Event = field(default_factory=threading.Event)
-    thread: threading.Thread | None = None
-    sub: Any = None
-    reinit_on_wrap: bool = False
-
-
-class Fleet:
-    """Streams of real frames that can be added and removed while the service runs.
-
-    Each stream has its own thread, paced at ``fps`` with its phase spread over the frame
-    period (independent cameras are not synchronised), and ``sessions`` tracking sessions
-    started on the sequence's first box at frame 0. Latency is capture (publication) to
-    result received, as in ``arcf-loadtest``.
-    """
-
-    def __init__(self, client: Any, sequences: list[Any], *, preset: str = "arcf-h",
-                 fps: float = 10.0, window: int = 40) -> None:
-        self.client, self.preset, self.fps = client, preset, fps
-        self._clips = []
-        for seq in sequences:
-            data = [p.read_bytes() for p in seq.frames[:window]]
-            # forth and back: 0 1 ... n-1 n-2 ... 1, repeated
-            self._clips.append((seq.name, tuple(seq.init_box), data + data[-2:0:-1]))
-        self.live: list[_SimulatedStream] = []
-        self.ended: list[_SimulatedStream] = []
-        self._count = 0
-        self.sessions_started = 0
-        self.sessions_stopped = 0
-
-    def add(self, n: int = 1, *, sessions: int = 1, name: str | None = None,
-            reinit_on_wrap: bool = False) -> list[_SimulatedStream]:
-        """Start ``n`` streams (``name`` only with n=1, e.g. to reuse a stream id). With
-        ``reinit_on_wrap`` the sessions are re-initialised on the first box each time the
-        clip starts over (the one frame where that box is right)."""
-        out = []
-        for _ in range(n):
-            k = self._count
-            self._count += 1
-            clip_name, box, frames = self._clips[k % len(self._clips)]
-            st = _SimulatedStream(name or f"stress-{k}-{clip_name}", k, frames, box,
-                         reinit_on_wrap=reinit_on_wrap)
-
-            def on_result(r: Any, st: _SimulatedStream = st) -> None:
-                now = time.monotonic()
-                st.results.append((r.session_id, r.frame_seq, now,
-                                   (time.time_ns() - r.capture_ts_ns) / 1e9, r.dropped,
-                                   r.status.value, r.track_s, r.scale))
-
-            st.sub = self.client.results(st.name, callback=on_result)
-            for _ in range(sessions):
-                st.sessions.append(self.client.start(st.name, box, preset=self.preset,
-                                                     frame_seq=0).session_id)
-                self.sessions_started += 1
-            st.thread = threading.Thread(target=self._publish, args=(st,), daemon=True,
-                                         name=f"publish-{st.name}")
-            st.thread.start()
-            self.live.append(st)
-            out.append(st)
-        return out
-
-    def _publish(self, st: _SimulatedStream) -> None:
-        period = 1.0 / self.fps
-        t0 = time.monotonic() + ((st.index * GOLDEN) % 1.0) * period
-        i = 0
-        while not st.stop.is_set():
-            delay = t0 + i * period - time.monotonic()
-            if delay > 0 and st.stop.wait(delay):
-                break
-            if st.reinit_on_wrap and i and i % len(st.frames) == 0:
-                for sid in st.sessions:  # a new box on this frame: the tracker starts over
-                    self.client.reinit(sid, st.box, frame_seq=i)
-            self.client.publish_frame(st.name, data=st.frames[i % len(st.frames)], seq=i)
-            st.sent.append((i, time.monotonic()))
-            i += 1
-
-    def remove(self, n: int = 1, *, streams: list[_SimulatedStream] | None = None) -> None:
-        """Stop ``streams`` (default: the ``n`` newest): publishing stops, then the sessions."""
-        chosen = streams if streams is not None else self.live[-n:] if n else []
-        for st in chosen:
-            st.stop.set()
-        for st in chosen:
-            assert st.thread is not None
-            st.thread.join(timeout=5)
-            for sid in st.sessions:
-                self.client.stop(sid)
-                self.sessions_stopped += 1
-            time.sleep(0.05)
-            st.sub.close()
-            self.live.remove(st)
-            self.ended.append(st)
-
-    def close(self) -> None:
-        self.remove(streams=list(self.live))
-
-    # ------------------------------------------------------------------ measurements
-    def streams(self) -> list[_SimulatedStream]:
-        return self.ended + self.live
-
-    def window(self, t0: float, t1: float, streams: list[_SimulatedStream] | None = None
-               ) -> dict[str, Any]:
-        """What happened between monotonic times t0 and t1: frames offered, results, frames
-        the service reported dropped (``dropped`` of the results received), latency."""
-        chosen = streams if streams is not None else self.streams()
-        sent = sum(1 for st in chosen for _, t in st.sent if t0 <= t <= t1)
-        got = [r for st in chosen for r in st.results if t0 <= r[2] <= t1]
-        sessions = max(np.mean([len(st.sessions) for st in chosen]), 1) if chosen else 1
-        dropped = sum(r[4] for r in got)
-        span = max(t1 - t0, 1e-9)
-        return {"seconds": span, "offered_fps": sent / span,
-                "processed_fps": len(got) / sessions / span,
-                "results": len(got), "dropped": dropped,
-                "drop_fraction": dropped / max(dropped + len(got), 1),
-                "errors": sum(1 for r in got if r[5] == "error"),
-                "latency_ms": _percentiles([r[3] for r in got]),
-                "track_ms": float(np.nanmean([r[6] for r in got]) * 1e3) if got else float("nan"),
-                "scale": float(np.nanmedian([r[7] for r in got])) if got else float("nan")}
-
-    def ledger(self) -> dict[str, int]:
-        """Every frame of every session accounted for, over the whole run.
-
-        Per session, its results' frame numbers must increase, and each frame up to the last
-        one answered either has a result or is counted in a later result's ``dropped`` (frames
-        before the session's first result are counted here as skipped at the start). Frames
-        sent after the last answered one were still queued when the stream stopped."""
-        out = {"sessions": 0, "results": 0, "dropped": 0, "skipped_at_start": 0,
-               "unaccounted": 0, "out_of_order": 0, "tail": 0}
-        for st in self.streams():
-            n_sent = len(st.sent)
-            for sid in st.sessions:
-                rows = [r for r in st.results if r[0] == sid and r[5] != "stopped"]
-                out["sessions"] += 1
-                if not rows:
-                    out["tail"] += n_sent
-                    continue
-                seqs = [r[1] for r in rows]
-                out["out_of_order"] += sum(1 for a, b in itertools.pairwise(seqs) if b <= a)
-                dropped = sum(r[4] for r in rows[1:])
-                out["results"] += len(rows)
-                out["dropped"] += dropped
-                out["skipped_at_start"] += seqs[0]
-                out["unaccounted"] += abs(seqs[-1] + 1 - seqs[0] - dropped - len(rows))
-                out["tail"] += n_sent - (seqs[-1] + 1)
-        return out
+def _stress_fleet(client: Any, sequences: list[Any], preset: str, fps: float,
+                  window: int) -> Fleet:
+    """Streams at ``fps``, each replaying the first ``window`` frames of a sequence forth and
+    back."""
+    clips = [Clip.of(seq, limit=window, palindrome=True) for seq in sequences]
+    return Fleet(client, clips, preset=preset, pacing=Pacing.fixed_rate(fps), prefix="stress")
 
 
 def _metrics_delta(before: dict[str, float], metrics_url: str | None) -> dict[str, float]:
@@ -347,8 +122,7 @@ def timeline(fleet: Fleet, memory: MemorySampler, t0: float, t1: float,
     for a in np.arange(t0, t1 - bin_s + 1e-9, bin_s):
         w = fleet.window(a, a + bin_s)
         mem = memory.between(a, a + bin_s)
-        live = sum(1 for st in fleet.streams() if st.sent and st.sent[0][1] <= a + bin_s
-                   and st.sent[-1][1] >= a)
+        live = len(fleet.ledger.live_between(a, a + bin_s))
         rows.append({"t": float(a - t0), "streams": live, "offered_fps": w["offered_fps"],
                      "results": w["results"], "dropped": w["dropped"],
                      "p50_ms": w["latency_ms"]["p50"], "p99_ms": w["latency_ms"]["p99"],
@@ -387,7 +161,7 @@ def run_overload(client: Any, sequences: list[Any], *, service_pid: int,
     overload. Below the capacity, the before/after comparison does not sit on the edge where a
     shared machine's noise alone makes frames drop. ``capacity_from="throughput"`` sizes the
     capacity with :func:`saturation_capacity` instead of the latency ramp."""
-    fleet = Fleet(client, sequences, preset=preset, fps=fps, window=window)
+    fleet = _stress_fleet(client, sequences, preset, fps, window)
     memory = MemorySampler(service_pid, interval=1.0).start()
     before = scrape(metrics_url)
     try:
@@ -430,7 +204,7 @@ def run_overload(client: Any, sequences: list[Any], *, service_pid: int,
             fleet.close()
     delta = _metrics_delta(before, metrics_url)
 
-    def phase(name: str, start: str, end: str, streams: list[_SimulatedStream] | None = None
+    def phase(name: str, start: str, end: str, streams: list[SimulatedStream] | None = None
               ) -> dict[str, Any]:
         a, b = marks[start] + settle_s, marks[end]
         stats = fleet.window(a, b, streams)
@@ -439,12 +213,11 @@ def run_overload(client: Any, sequences: list[Any], *, service_pid: int,
         stats["latency_ms_first_half"] = first["latency_ms"]
         stats["latency_ms_second_half"] = second["latency_ms"]
         stats["memory"] = memory.summary(a, b)
-        stats["streams"] = len(streams) if streams is not None else len(
-            [st for st in fleet.streams() if st.sent and st.sent[0][1] <= b
-             and st.sent[-1][1] >= a])
+        stats["streams"] = (len(streams) if streams is not None
+                            else len(fleet.ledger.live_between(a, b)))
         return {"phase": name, **stats}
 
-    ledger = fleet.ledger()
+    ledger = fleet.ledger.accounting()
     phases = [phase("nominal", "nominal", "overload", base),
               phase("overload", "overload", "recovery"),
               phase("recovery", "recovery_started", "end", base)]
@@ -460,7 +233,7 @@ def run_overload(client: Any, sequences: list[Any], *, service_pid: int,
         "nominal_streams": nominal, "overload_streams": round(capacity * factor),
         "phase_s": phase_s,
         "p99_criterion_ms": p99_ms, "window": window,
-        "sequences": sorted({c[0] for c in fleet._clips}),
+        "sequences": sorted({c.name for c in fleet.clips}),
         "phases": phases,
         "recovery_bar_ms": bar,
         "recovery_max_drop": max_drop,
@@ -482,7 +255,7 @@ def run_soak(client: Any, sequences: list[Any], *, service_pid: int,
     a new one when it ends. Every third stream has two sessions, every fifth reuses the id of a
     stream that ended, and sessions are re-initialised each time their clip starts over."""
     rng = random.Random(seed)
-    fleet = Fleet(client, sequences, preset=preset, fps=fps, window=window)
+    fleet = _stress_fleet(client, sequences, preset, fps, window)
     memory = MemorySampler(service_pid, interval=sample_s).start()
     before = scrape(metrics_url)
     deadline: dict[str, float] = {}
@@ -497,7 +270,8 @@ def run_soak(client: Any, sequences: list[Any], *, service_pid: int,
         name = fleet.ended[rng.randrange(len(fleet.ended))].name if reuse else None
         if name is not None and any(st.name == name for st in fleet.live):
             name = None
-        (st,) = fleet.add(1, sessions=2 if started % 3 == 2 else 1, name=name,
+        (st,) = fleet.add(1, sessions=2 if started % 3 == 2 else 1,
+                          names=[name] if name else None,
                           reinit_on_wrap=True)
         deadline[st.name] = time.monotonic() + life
         started += 1
@@ -535,7 +309,7 @@ def run_soak(client: Any, sequences: list[Any], *, service_pid: int,
         "warmup_s": warmup_s, "lifetime_s": list(lifetime_s), "window": window,
         "streams_started": started, "sessions_started": fleet.sessions_started,
         "sessions_stopped": fleet.sessions_stopped,
-        "frames_sent": sum(len(st.sent) for st in fleet.streams()),
+        "frames_sent": sum(st.sent for st in fleet.streams()),
         "load": fleet.window(t_start, t_end),
         "memory_start_mb": memory.summary(t_start, t_start + 2 * sample_s),
         "memory_warm_mb": warm, "memory_end_mb": end, "memory_steady": steady,
@@ -544,17 +318,6 @@ def run_soak(client: Any, sequences: list[Any], *, service_pid: int,
         #: [seconds since start, anonymous MB, PSS MB, RSS MB]
         "memory_series": [[round(r[0] - t_start, 1), round(r[1], 1), round(r[2], 1),
                            round(r[3], 1)] for r in rows],
-        "ledger": fleet.ledger(),
+        "ledger": fleet.ledger.accounting(),
         "metrics_delta": delta,
     }
-
-
-def cpu_model() -> str:
-    for line in Path("/proc/cpuinfo").read_text().splitlines():
-        if line.startswith("model name"):
-            return line.split(":", 1)[1].strip()
-    return "unknown"
-
-
-def machine() -> dict[str, Any]:
-    return {"nproc": os.cpu_count(), "cpu": cpu_model()}

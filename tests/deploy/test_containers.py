@@ -23,11 +23,9 @@ import os
 import shutil
 import subprocess
 import sys
-import threading
 import time
 import urllib.parse
 import urllib.request
-from collections import defaultdict
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -38,15 +36,16 @@ import pytest
 
 pytest.importorskip("zenoh")
 
-from service_harness import first_resumed, free_port, gaps
-
 import arcf
 from arcf.data import data_root
 from arcf.eval import load_dataset
+from loadtools.driver import Clip, Fleet, Pacing
+from loadtools.ledger import StreamRecord
+from loadtools.procs import free_port
 from service.client import TrackingClient
 from service.cluster import owner
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 DEPLOY = ROOT / "deploy"
 INSTANCES = ("arcf-1", "arcf-2")
 
@@ -191,43 +190,20 @@ def test_instances_healthy_nonroot_readonly(stack: Stack) -> None:
         assert probe.stdout.count("No such file") == 3, probe.stdout
 
 
-def _collect(client: TrackingClient, streams: list[str]) -> tuple[dict[str, list], Any, list]:
-    results: dict[str, list[tuple[Any, float]]] = defaultdict(list)
-    lock = threading.Lock()
-    subs = []
-    for name in streams:
-        def on_result(r: Any, name: str = name) -> None:
-            with lock:
-                results[name].append((r, time.monotonic()))
-        subs.append(client.results(name, callback=on_result))
-    return results, lock, subs
-
-
 def test_host_client_tracks_a_real_sequence_through_the_router(stack: Stack) -> None:
     """Every frame of truck4_1 answered in order, with the boxes of the library in-process."""
     seq = load_dataset("uav123_10fps", sequences=["truck4_1"])[0]
     reference = arcf.create_tracker("bacf")
     expected = [reference.init(seq.read_frame(0), seq.init_box).box]
     expected += [reference.update(seq.read_frame(i)).box for i in range(1, len(seq))]
-    client = TrackingClient(connect=[f"tcp/127.0.0.1:{stack.router_port}"])
-    try:
+    with TrackingClient(connect=[f"tcp/127.0.0.1:{stack.router_port}"]) as client, \
+            Fleet(client, [Clip.of(seq)], preset="bacf", pacing=Pacing.fixed_rate(15)) as fleet:
         assert sorted(client.status().instances) == list(INSTANCES)
-        results, lock, _subs = _collect(client, ["cam-host"])
-        client.start("cam-host", seq.init_box, preset="bacf", session_id="s-host", frame_seq=0)
-        t0 = time.monotonic()
-        for i, path in enumerate(seq.frames):  # bounded: one pass at 15 fps
-            client.publish_frame("cam-host", data=path.read_bytes(), seq=i)
-            time.sleep(max(0.0, t0 + (i + 1) / 15 - time.monotonic()))
-        deadline = time.monotonic() + 20
-        while time.monotonic() < deadline:
-            with lock:
-                if len(results["cam-host"]) >= len(seq):
-                    break
-            time.sleep(0.1)
-        with lock:
-            got = {r.frame_seq: r for r, _ in results["cam-host"]}
-    finally:
-        client.close()
+        (stream,) = fleet.add(names=["cam-host"], session_id=lambda *_: "s-host",
+                              frames=len(seq))  # bounded: one pass at 15 fps
+        fleet.wait_published(timeout=len(seq))
+        fleet.settle(timeout=20)
+        got = {r.frame_seq: r.result for r in stream.record.received}
     assert sorted(got) == list(range(len(seq))), "frames without a result"
     boxes = np.array([got[i].box for i in range(len(seq))])
     centre = lambda b: b[:, :2] + b[:, 2:] / 2  # noqa: E731
@@ -257,7 +233,7 @@ def test_prometheus_scrapes_both_instances(stack: Stack) -> None:
     assert total > 0
 
 
-def _assert_flowing(results: list[tuple[Any, float]], t0: float, t1: float, name: str) -> None:
+def _assert_flowing(record: StreamRecord, t0: float, t1: float) -> None:
     """A stream the failover does not concern keeps flowing from ``t0`` to ``t1``.
 
     Everything here shares this machine's 2 cores: when the survivor takes over the killed
@@ -266,8 +242,9 @@ def _assert_flowing(results: list[tuple[Any, float]], t0: float, t1: float, name
     result's ``dropped``): docs/benchmarks.md §9 measured 1-8 per event with one worker per
     instance, as here. More than that, or a stall, is a failure.
     """
-    assert gaps(results, t0, t1) <= 8, f"{name}: more frames shed than a failover explains"
-    times = [t for _, t in results if t0 <= t <= t1]
+    name = record.name
+    assert record.gaps(t0, t1) <= 8, f"{name}: more frames shed than a failover explains"
+    times = [r.t for r in record.received if t0 <= r.t <= t1]
     assert len(times) >= 2 and max(b - a for a, b in itertools.pairwise(times)) < 2.5, name
 
 
@@ -277,44 +254,28 @@ def test_docker_kill_moves_streams_and_the_instance_comes_back(stack: Stack) -> 
     victim = [n for n in names if owner(n, INSTANCES) == "arcf-2"]
     others = [n for n in names if n not in victim]
     seq = load_dataset("uav123_10fps", sequences=["truck4_1"])[0]
-    frames = [p.read_bytes() for p in seq.frames]
-    client = TrackingClient(connect=[f"tcp/127.0.0.1:{stack.router_port}"])
-    stop = threading.Event()
-    try:
-        results, lock, _subs = _collect(client, names)
-        for name in names:
-            client.start(name, seq.init_box, preset="bacf", session_id=f"s-{name}",
-                         frame_seq=0)
-
-        def publish() -> None:
-            t0 = time.monotonic()
-            for i in range(600):  # bounded: 2 minutes at 5 fps
-                if stop.is_set():
-                    return
-                for name in names:
-                    client.publish_frame(name, data=frames[i % len(frames)], seq=i)
-                time.sleep(max(0.0, t0 + (i + 1) / 5 - time.monotonic()))
-
-        publisher = threading.Thread(target=publish, daemon=True)
-        publisher.start()
+    with TrackingClient(connect=[f"tcp/127.0.0.1:{stack.router_port}"]) as client, \
+            Fleet(client, [Clip.of(seq)], preset="bacf",
+                  pacing=Pacing.fixed_rate(5, aligned=True)) as fleet:
+        ledger = fleet.ledger
+        # bounded: 2 minutes at 5 fps
+        fleet.add(names=names, frames=600, session_id=lambda stream, _: f"s-{stream}")
         time.sleep(4.0)
-        with lock:
-            assert all(results[n] for n in names), "a stream without results before the kill"
+        assert all(ledger[n].received for n in names), "a stream without results before the kill"
 
         t_kill = time.monotonic()
         subprocess.run(["docker", "kill", stack.container("arcf-2")], check=True,
                        capture_output=True, timeout=30)
-        resumed = first_resumed(results, lock, victim, t_kill, timeout=15)
+        resumed = ledger.first_resumed(victim, t_kill, timeout=15)
         assert sorted(resumed) == sorted(victim), "streams of the killed container not resumed"
         failover_s = max(resumed.values()) - t_kill
         time.sleep(2.0)
-        with lock:
-            for n in others:
-                _assert_flowing(results[n], t_kill - 1.0, time.monotonic(), n)
-                assert not any(r.status.value == "resumed" for r, _ in results[n]), n
-            for n in victim:
-                after = [r for r, t in results[n] if t > resumed[n]]
-                assert len(after) >= 5 and all(r.status.value == "tracking" for r in after[1:])
+        for n in others:
+            _assert_flowing(ledger[n], t_kill - 1.0, time.monotonic())
+            assert ledger[n].first_with_status("resumed", 0.0) is None, n
+        for n in victim:
+            after = [r for r in ledger[n].received if r.t > resumed[n]]
+            assert len(after) >= 5 and all(r.status == "tracking" for r in after[1:])
 
         # the killed container is started again (as its restart policy or an operator would)
         # and takes its streams back; the survivor's own streams keep flowing
@@ -322,19 +283,15 @@ def test_docker_kill_moves_streams_and_the_instance_comes_back(stack: Stack) -> 
         t_back = time.monotonic()
         if not state["Running"]:
             stack.compose("start", "arcf-2")
-        returned = first_resumed(results, lock, victim, t_back, timeout=60)
+        returned = ledger.first_resumed(victim, t_back, timeout=60)
         assert sorted(returned) == sorted(victim), "the restarted instance took nothing back"
         time.sleep(2.0)
-        with lock:
-            for n in others:
-                _assert_flowing(results[n], t_back, time.monotonic(), n)
+        for n in others:
+            _assert_flowing(ledger[n], t_back, time.monotonic())
         stack.wait_healthy(("arcf-1", "arcf-2"))
         print(f"docker kill: streams resumed on the survivor after {failover_s * 1e3:.0f} ms "
               f"(restarted by its policy: {state['Running']}); taken back "
               f"{max(returned.values()) - t_back:.1f} s after the restart")
-    finally:
-        stop.set()
-        client.close()
 
 
 def test_compose_down_leaves_nothing(stack: Stack) -> None:

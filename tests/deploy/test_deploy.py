@@ -6,7 +6,7 @@
 * Grafana: provisioning parsed, dashboard JSON valid, every query names a metric we export;
 * Zenoh: every config file parsed by Zenoh itself (it rejects unknown keys), and the router
   config run as a real router that a client and the service reach;
-* Dockerfile: its structure (the images are built and run by tests/test_containers.py where a
+* Dockerfile: its structure (the images are built and run by tests/deploy/test_containers.py where a
   Docker engine answers).
 """
 
@@ -22,11 +22,11 @@ from typing import Any
 
 import pytest
 import yaml
-from service_harness import free_port
 
+from loadtools.procs import free_port
 from service.settings import ServiceSettings
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 DEPLOY = ROOT / "deploy"
 
 
@@ -142,8 +142,7 @@ def test_router_config_runs_a_router_the_service_reaches() -> None:
     conf.insert_json5("listen/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
     conf.insert_json5("plugins", "{}")  # no REST port in a test
     with zenoh.open(conf):
-        from service_harness import ServiceProcess
-
+        from loadtools.procs import ServiceProcess
         from service.client import TrackingClient
 
         svc = ServiceProcess("--zenoh-config", str(DEPLOY / "zenoh" / "service.json5"),
@@ -175,7 +174,7 @@ def dockerfile_stages() -> list[dict[str, Any]]:
 
 
 def test_dockerfile_is_multistage_slim_nonroot_with_healthcheck() -> None:
-    """Static checks; tests/test_containers.py builds and runs the image for real."""
+    """Static checks; tests/deploy/test_containers.py builds and runs the image for real."""
     text = (DEPLOY / "Dockerfile").read_text()
     base = re.search(r"^ARG BASE_IMAGE=(\S+)", text, flags=re.M)
     assert base and "slim" in base.group(1)  # the official slim image unless told otherwise

@@ -18,11 +18,9 @@ what was observed.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import os
 import sys
-import threading
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -30,9 +28,15 @@ from typing import Any
 
 import numpy as np
 
-from .decoding import decode_compressed
-from .scrape import scrape
-from .settings import ZENOH_SHORT_FLAGS
+from arcf.eval import load_dataset, score_sequence
+from service.decoding import decode_compressed
+from service.scrape import scrape
+from service.settings import ZENOH_SHORT_FLAGS
+
+from .driver import Clip, Fleet, Pacing
+from .ledger import meets_capacity, percentiles
+from .procs import ServiceProcess
+from .system import CpuMeter
 
 
 @dataclass
@@ -52,73 +56,6 @@ class StreamReport:
     offline_auc: float = float("nan")
 
 
-def _percentiles(values: list[float]) -> dict[str, float]:
-    if not values:
-        return {k: float("nan") for k in ("p50", "p95", "p99", "max")}
-    a = np.asarray(values) * 1e3
-    return {"p50": float(np.percentile(a, 50)), "p95": float(np.percentile(a, 95)),
-            "p99": float(np.percentile(a, 99)), "max": float(a.max())}
-
-
-_TICK = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
-
-
-def _cpu_seconds(pid: int) -> float:
-    """User + system CPU time of one process, from /proc (0 if it is gone)."""
-    with contextlib.suppress(OSError, IndexError, ValueError):
-        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-        return (int(fields[11]) + int(fields[12])) / _TICK
-    return 0.0
-
-
-def _process_tree(pid: int) -> set[int]:
-    """``pid`` and all its descendants (the service's main process and its workers)."""
-    parents: dict[int, int] = {}
-    for stat in Path("/proc").glob("[0-9]*/stat"):
-        with contextlib.suppress(OSError, IndexError, ValueError):
-            parents[int(stat.parent.name)] = int(stat.read_text().rsplit(")", 1)[1].split()[1])
-    tree, grew = {pid}, True
-    while grew:
-        new = {c for c, p in parents.items() if p in tree} - tree
-        tree |= new
-        grew = bool(new)
-    return tree
-
-
-def _machine_ticks() -> tuple[int, int]:
-    """(busy, total) CPU ticks of the whole machine since boot, from /proc/stat."""
-    with contextlib.suppress(OSError, ValueError):
-        values = [int(v) for v in Path("/proc/stat").read_text().split("\n")[0].split()[1:]]
-        idle = values[3] + (values[4] if len(values) > 4 else 0)
-        return sum(values) - idle, sum(values)
-    return 0, 0
-
-
-class CpuMeter:
-    """CPU used during a run by this load generator, the service (if its pid is known) and the
-    whole machine, in cores (CPU seconds per wall second). On a small machine the generator
-    competes with the workers, so its share has to be known before capacity is read."""
-
-    def __init__(self, service_pid: int | None = None) -> None:
-        self.service = sorted(_process_tree(service_pid)) if service_pid else []
-        self.t0 = time.monotonic()
-        self.own0 = time.process_time()
-        self.svc0 = {p: _cpu_seconds(p) for p in self.service}
-        self.machine0 = _machine_ticks()
-
-    def read(self) -> dict[str, float]:
-        wall = max(time.monotonic() - self.t0, 1e-9)
-        busy1, total1 = _machine_ticks()
-        busy0, total0 = self.machine0
-        ncpu = os.cpu_count() or 1
-        out = {"cpus": float(ncpu),
-               "generator_cores": (time.process_time() - self.own0) / wall,
-               "machine_cores": ncpu * (busy1 - busy0) / max(total1 - total0, 1)}
-        if self.service:
-            out["service_cores"] = sum(_cpu_seconds(p) - c for p, c in self.svc0.items()) / wall
-        return out
-
-
 def time_breakdown(delta: dict[str, float]) -> dict[str, float]:
     """Mean milliseconds per frame spent decoding, tracking, and everywhere else (transport in,
     queueing, message decoding and result publishing), from the service's own histograms."""
@@ -135,15 +72,15 @@ def time_breakdown(delta: dict[str, float]) -> dict[str, float]:
             "end_to_end_ms": e2e, "other_ms": e2e - decode - track * per_frame}
 
 
-def _offline(preset: str, seq: Any, data: list[bytes]) -> tuple[float, float]:
-    """The library alone, in this process, on the same JPEG bytes: (P@20, AUC)."""
+def _offline(preset: str, clip: Clip, n: int) -> tuple[float, float]:
+    """The library alone, in this process, on the clip's first ``n`` JPEG frames: (P@20, AUC)."""
 
     import arcf
-    from arcf.eval import score_sequence
 
-    frames = (decode_compressed(d) for d in data)  # as a worker decodes them
-    run = arcf.run_sequence(arcf.create_tracker(preset), frames, seq.init_box)
-    sc = score_sequence(run.boxes, seq.groundtruth[: len(data)])
+    frames = (decode_compressed(d) for d in clip.frames[:n])  # as a worker decodes them
+    run = arcf.run_sequence(arcf.create_tracker(preset), frames, clip.box)
+    assert clip.groundtruth is not None
+    sc = score_sequence(run.boxes, clip.groundtruth[:n])
     return sc.precision20, sc.auc
 
 
@@ -221,46 +158,37 @@ def run_load(
 ) -> dict[str, Any]:
     """Run one load level and return its report (a JSON-able dict).
 
+    Stream k replays ``sequences[k mod len]`` (its first ``max_frames``, or ``window``,
+    frames), paced by ``fps`` (0: as fast as possible), ``in_flight`` and ``aligned`` (see
+    :class:`~loadtools.driver.Pacing`); stream starts are ``stagger`` s apart.
+
     With ``loop`` a stream replays its sequence again from the start when it runs out (the
     sessions are re-initialised on the ground truth's first box at each wrap), so a run can last
     longer than the sequence; accuracy is scored on the first pass. ``window`` replays only the
     sequence's first frames (looped), so that the service and the library reference below
     track exactly the same frames whatever their speed: a target's size, and with it the cost
-    of a frame, changes along a sequence. With ``in_flight`` > 0 each
-    stream is a closed loop: frame i is sent once frame i - in_flight has all its results (or
-    after 2 s), so several such streams per worker keep every worker busy without a single drop,
-    which is how the service's saturation throughput is measured.
+    of a frame, changes along a sequence. With ``in_flight`` > 0 each stream is a closed loop,
+    so several such streams per worker keep every worker busy without a single drop, which is
+    how the service's saturation throughput is measured.
 
     The library's own throughput on the same frames is measured for ``reference_seconds`` (0
     skips it), half before the load and half after: one process, and ``reference_processes``
     side by side (default: one per CPU, like the service's workers). ``cache`` keeps the offline
     accuracy runs across the levels of a sweep.
     """
-    from arcf.eval import score_sequence
+    from service.client import TrackingClient
 
-    from .client import TrackingClient
-
-    before = scrape(metrics_url)
-    results: dict[str, list[tuple[Any, int]]] = {}
-    sent: dict[str, int] = {}
-    lock = threading.Condition()
-    answered: dict[str, dict[int, int]] = {}  # stream -> frame -> results so far
-    plan = []
-    for k in range(streams):
-        seq = sequences[k % len(sequences)]
-        n = len(seq) if not max_frames else min(len(seq), max_frames)
-        n = min(n, window) if window else n
-        plan.append((f"load-{k}-{seq.name}", seq, [p.read_bytes() for p in seq.frames[:n]]))
+    clips = []
+    for seq in sequences[: min(streams, len(sequences))]:
+        n = min(len(seq), max_frames) if max_frames else len(seq)
+        clips.append(Clip.of(seq, limit=min(n, window) if window else n))
     cache = cache if cache is not None else {}
     workers = reference_processes or os.cpu_count() or 1
-    reference = {"library_fps": float("nan"), "library_parallel_fps": float("nan"),
-                 "library_processes": workers, "library_fps_runs": [],
-                 "library_parallel_fps_runs": []}
-    items, seen = [], set()
-    for _, seq, data in plan:
-        if seq.name not in seen:
-            seen.add(seq.name)
-            items.append((tuple(seq.init_box), data))
+    reference: dict[str, Any] = {"library_fps": float("nan"),
+                                 "library_parallel_fps": float("nan"),
+                                 "library_processes": workers, "library_fps_runs": [],
+                                 "library_parallel_fps_runs": []}
+    items = [(clip.box, list(clip.frames)) for clip in clips]
 
     def measure_reference() -> None:
         """Half the reference time before the load and half after, so that the drift of a
@@ -275,92 +203,34 @@ def run_load(
     if reference_seconds > 0:
         measure_reference()
 
+    before = scrape(metrics_url)
+    pacing = Pacing(fps=fps, in_flight=in_flight, aligned=aligned)
     with TrackingClient(connect=connect, prefix=prefix) as client:
-        subs, acks = [], {}
-        for name, seq, _ in plan:
-            results[name] = []
-            sent[name] = 0
-
-            answered[name] = {}
-
-            def on_result(r: Any, name: str = name) -> None:
-                with lock:
-                    results[name].append((r, time.time_ns()))
-                    answered[name][r.frame_seq] = answered[name].get(r.frame_seq, 0) + 1
-                    lock.notify_all()
-
-            subs.append(client.results(name, callback=on_result))
-            acks[name] = [client.start(name, seq.init_box, preset=preset, frame_seq=0)
-                          for _ in range(sessions_per_stream)]
-
-        ended_ns: dict[str, int] = {}
-
-        def phase(k: int) -> float:
-            """Where stream k's frames fall within the frame period. Independent drones'
-            cameras are not synchronised, so by default the phases are spread over the period
-            (a golden-ratio sequence: even for any number of streams). ``aligned`` puts every
-            frame of every stream at the same instant: the worst case, a synchronised fleet.
-            A stagger that is a multiple of the period would align them by accident."""
-            if aligned or fps <= 0:
-                return 0.0
-            return ((k * 0.6180339887498949) % 1.0) / fps - (k * stagger) % (1.0 / fps)
-
-        def publisher(k: int) -> None:
-            name, seq, data = plan[k]
-            time.sleep(k * stagger + phase(k))
-            t0 = time.monotonic()
-            limit = (max_frames or None) if loop else len(data)
-            i = 0
-            while time.monotonic() <= stop_at and (limit is None or i < limit):
-                if i and i % len(data) == 0:  # a new pass: start over from the first box
-                    for ack in acks[name]:
-                        client.reinit(ack.session_id, seq.init_box, frame_seq=i)
-                if in_flight and i >= in_flight:  # closed loop: wait for frame i - in_flight
-                    wanted = i - in_flight
-                    with lock:
-                        lock.wait_for(lambda w=wanted: answered[name].get(w, 0)
-                                      >= sessions_per_stream, timeout=2.0)
-                client.publish_frame(name, data=data[i % len(data)], seq=i)
-                sent[name] = i = i + 1
-                if fps > 0:
-                    time.sleep(max(0.0, t0 + i / fps - time.monotonic()))
-            ended_ns[name] = time.time_ns()
-
-        threads = [threading.Thread(target=publisher, args=(k,), daemon=True)
-                   for k in range(streams)]
-        start, start_ns = time.monotonic(), time.time_ns()
+        fleet = Fleet(client, clips, preset=preset, pacing=pacing, prefix="load")
+        # stream k's frame count: its clip, or (looping) up to max_frames or the duration
+        count = [(max_frames or None) if loop else len(clips[k % len(clips)])
+                 for k in range(streams)]
+        start = time.monotonic()
         stop_at = start + duration + stagger * streams
         cpu = CpuMeter(service_pid)
-        for t in threads:
-            t.start()
-        while any(t.is_alive() for t in threads):
-            time.sleep(1.0)
+        for k in range(streams):
+            fleet.add(1, sessions=sessions_per_stream, frames=count[k], reinit_on_wrap=loop,
+                      delay=k * stagger)
+        started = list(fleet.live)
+        while any(st.publishing() for st in started) and time.monotonic() < stop_at:
+            time.sleep(min(1.0, max(0.0, stop_at - time.monotonic())))
             if progress:
-                with lock:
-                    n_res = sum(len(v) for v in results.values())
-                    lat = [(rcv - r.capture_ts_ns) / 1e9 for v in results.values()
-                           for r, rcv in v[-50:]]
-                p99 = np.percentile(lat, 99) * 1e3 if lat else float("nan")
-                print(f"\r{streams} streams: {sum(sent.values())} frames sent, {n_res} results, "
+                recent = [r for st in started for r in st.record.received[-50:]]
+                p99 = percentiles([r.latency_s for r in recent])["p99"]
+                print(f"\r{streams} streams: {sum(st.sent for st in started)} frames sent, "
+                      f"{sum(len(st.record.received) for st in started)} results, "
                       f"p99 {p99:.0f} ms, {time.monotonic() - start:.0f} s", end="",
                       file=sys.stderr, flush=True)
-        # the tail: wait until every session answered its stream's last frame (or give up)
-        deadline = time.monotonic() + 10
-        while time.monotonic() < deadline:
-            with lock:
-                done = all(
-                    sum(1 for r, _ in results[name] if r.frame_seq == sent[name] - 1)
-                    >= sessions_per_stream for name, _, _ in plan if sent[name])
-            if done:
-                break
-            time.sleep(0.05)
+        fleet.pause()
+        fleet.settle(timeout=10)  # the tail: every session answers its stream's last frame
         elapsed = time.monotonic() - start
         cpu_use = cpu.read()
-        for session_acks in acks.values():
-            for ack in session_acks:
-                client.stop(ack.session_id)
-        for s in subs:
-            s.close()
+        fleet.close()
         if progress:
             print(file=sys.stderr)
     time.sleep(0.5)
@@ -369,47 +239,46 @@ def run_load(
         measure_reference()
 
     reports, all_lat = [], []
-    for name, seq, data in plan:
-        rs = results[name]
-        by_session: dict[str, list[Any]] = {}
-        for r, rcv in rs:
-            by_session.setdefault(r.session_id, []).append((r, rcv))
-        rep = StreamReport(name, seq.name, sessions_per_stream, frames_sent=sent[name],
+    for st in started:
+        rs = [r for r in st.record.received if r.status != "stopped"]
+        rep = StreamReport(st.name, st.clip.name, sessions_per_stream, frames_sent=st.sent,
                            results=len(rs))
-        lat = [(rcv - r.capture_ts_ns) / 1e9 for r, rcv in rs]
+        lat = [r.latency_s for r in rs]
         all_lat += lat
-        rep.latency_ms = _percentiles(lat)
+        rep.latency_ms = percentiles(lat)
         rep.result_rate = len(rs) / elapsed if elapsed > 0 else 0.0
-        first_pass = min(sent[name], len(data))
+        first_pass = min(st.sent, len(st.clip))
         dropped = missing = 0
         p20, aucs = [], []
-        for session_results in by_session.values():
-            session_results.sort(key=lambda x: x[0].frame_seq)
-            first = session_results[0][0].frame_seq
-            d = first + sum(r.dropped for r, _ in session_results[1:])
+        for sid in st.sessions:
+            session_results = sorted((r for r in rs if r.session_id == sid),
+                                     key=lambda r: r.frame_seq)
+            if not session_results:  # a session with no result is missing every frame
+                missing += st.sent
+                continue
+            d = session_results[0].frame_seq + sum(r.dropped for r in session_results[1:])
             dropped += d
-            missing += sent[name] - len(session_results) - d
+            missing += st.sent - len(session_results) - d
             boxes = np.full((first_pass, 4), np.nan)
-            for r, _ in session_results:
+            for r in session_results:
                 if r.frame_seq < first_pass:
-                    boxes[r.frame_seq] = r.box
+                    boxes[r.frame_seq] = r.result.box
             last = None
             for i in range(first_pass):  # a dropped frame keeps the previous box
                 if np.isnan(boxes[i, 0]) and last is not None:
                     boxes[i] = last
                 last = boxes[i] if not np.isnan(boxes[i, 0]) else last
-            sc = score_sequence(np.nan_to_num(boxes, nan=0.0), seq.groundtruth[:first_pass])
+            assert st.clip.groundtruth is not None
+            sc = score_sequence(np.nan_to_num(boxes, nan=0.0), st.clip.groundtruth[:first_pass])
             p20.append(sc.precision20)
             aucs.append(sc.auc)
-        # a session that produced no result at all is missing every frame
-        missing += (sessions_per_stream - len(by_session)) * sent[name]
         rep.dropped_by_service, rep.missing = dropped, missing
         rep.precision20 = float(np.mean(p20)) if p20 else float("nan")
         rep.auc = float(np.mean(aucs)) if aucs else float("nan")
         if offline and first_pass:
-            key = ("offline", preset, seq.name, first_pass)
+            key = ("offline", preset, st.clip.name, first_pass)
             if key not in cache:
-                cache[key] = _offline(preset, seq, data[:first_pass])
+                cache[key] = _offline(preset, st.clip, first_pass)
             rep.offline_precision20, rep.offline_auc = cache[key]
         reports.append(rep)
 
@@ -418,11 +287,12 @@ def run_load(
     metrics_delta = {k: after.get(k, 0.0) - before.get(k, 0.0) for k in after}
     result_rate = total_results / elapsed if elapsed > 0 else 0.0
     # throughput in the steady state: every stream started (plus a second), none finished yet
-    t_a = start_ns + int((stagger * (streams - 1) + 1.0) * 1e9)
-    t_b = min(ended_ns.values()) if ended_ns else 0
-    if t_b - t_a >= 2e9:
-        in_window = sum(1 for v in results.values() for _, rcv in v if t_a <= rcv <= t_b)
-        processed_rate = in_window / sessions_per_stream / ((t_b - t_a) / 1e9)
+    t_a = start + stagger * (streams - 1) + 1.0
+    t_b = min(st.record.sent[-1][1] for st in started if st.sent) if any(
+        st.sent for st in started) else 0.0
+    if t_b - t_a >= 2.0:
+        in_window = sum(1 for st in started for r in st.record.received if t_a <= r.t <= t_b)
+        processed_rate = in_window / sessions_per_stream / (t_b - t_a)
     else:
         processed_rate = result_rate / sessions_per_stream
     cpus = cpu_use["cpus"]
@@ -430,11 +300,11 @@ def run_load(
     return {
         "streams": streams, "sessions_per_stream": sessions_per_stream, "preset": preset,
         "fps": fps, "loop": loop, "elapsed_s": elapsed,
-        "sequences": sorted({seq.name for _, seq, _ in plan}),
+        "sequences": sorted({st.clip.name for st in started}),
         "frames_sent": total_sent, "results": total_results,
         "dropped_by_service": sum(r.dropped_by_service for r in reports),
         "missing": sum(r.missing for r in reports),
-        "latency_ms": _percentiles(all_lat),
+        "latency_ms": percentiles(all_lat),
         "result_rate": result_rate,
         "processed_fps": processed_rate,
         **reference,
@@ -452,13 +322,6 @@ def run_load(
             metrics_delta.get("arcf_results_published_total", -1) == total_results),
         "per_stream": [asdict(r) for r in reports],
     }
-
-
-def meets_capacity(results: int, lost: int, p99_ms: float, bound_ms: float = 100.0) -> bool:
-    """The capacity criterion, the one definition every tool uses: some results, not one
-    frame lost (dropped by the service or never answered), p99 end-to-end latency under the
-    bound."""
-    return results > 0 and lost == 0 and p99_ms < bound_ms
 
 
 def passes(report: dict[str, Any], p99_ms: float = 100.0) -> bool:
@@ -581,8 +444,6 @@ def main(argv: list[str] | None = None) -> int:
                     help="how long to measure the library's own throughput (0: skip)")
     args = ap.parse_args(argv)
 
-    from arcf.eval import load_dataset
-
     seqs = load_dataset(args.dataset)
     if args.sequences:
         wanted = args.sequences.split(",")
@@ -597,10 +458,8 @@ def main(argv: list[str] | None = None) -> int:
     connect, metrics_url = args.connect or ["tcp/127.0.0.1:7447"], args.metrics_url
     service_pid = args.service_pid
     if args.spawn_service:
-        from .procs import ServiceProcess
-
         proc = ServiceProcess(workers=os.cpu_count() or 1, quiet=False)
-        connect, metrics_url, service_pid = [proc.endpoint], proc.metrics_url, proc.proc.pid
+        connect, metrics_url, service_pid = [proc.endpoint], proc.metrics_url, proc.pid
         print(f"arcf-service started on {proc.endpoint}", file=sys.stderr)
     reports: list[dict[str, Any]] = []
     cache: dict[Any, Any] = {}

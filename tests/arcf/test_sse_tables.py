@@ -25,7 +25,7 @@ from arcf.errors import UnknownPresetError
 from arcf.features.fhog import fhog
 from arcf.features.sse import RCP_ENTRIES, RSQRT_ENTRIES, SSETables, load_sse_tables
 
-TOOL = Path(__file__).resolve().parents[1] / "tools" / "sse_approx_dump.c"
+TOOL = Path(__file__).resolve().parents[2] / "tools" / "sse_approx_dump.c"
 
 #: Our own helper: the packed instructions over an array, for ctypes.
 NATIVE_C = r"""

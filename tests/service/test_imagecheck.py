@@ -2,30 +2,16 @@
 
 from __future__ import annotations
 
-import struct
 import time
-import zlib
 from types import SimpleNamespace
 
 import cv2
 import numpy as np
 import pytest
 
+from loadtools.hostile import png_bomb
 from service.decoding import decode_image
 from service.imagecheck import image_size
-
-
-def png_bomb(width: int, height: int) -> bytes:
-    """A valid grayscale PNG of width x height zeros: tiny on the wire, huge decoded."""
-    def chunk(kind: bytes, body: bytes) -> bytes:
-        return (struct.pack(">I", len(body)) + kind + body
-                + struct.pack(">I", zlib.crc32(kind + body) & 0xFFFFFFFF))
-    comp = zlib.compressobj(9)
-    row = b"\x00" * (width + 1)  # filter byte + pixels
-    idat = b"".join(comp.compress(row) for _ in range(height)) + comp.flush()
-    ihdr = struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0)
-    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", idat)
-            + chunk(b"IEND", b""))
 
 
 def frame(payload: bytes, encoding: str) -> SimpleNamespace:

@@ -522,7 +522,7 @@ def test_decode_accepts_buffers_and_rejects_non_bytes() -> None:
 
 
 def test_error_codes_match_the_design() -> None:
-    design = (Path(__file__).parents[1] / "docs" / "wire-contract.md").read_text()
+    design = (Path(__file__).parents[2] / "docs" / "wire-contract.md").read_text()
     codes = {code.value for code in ErrorCode}
     assert len(codes) == 17  # the 13 of the first design, and 4 limits (stale, rate, pixels, caps)
     for code in codes:

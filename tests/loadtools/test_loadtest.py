@@ -6,11 +6,10 @@ import pytest
 
 pytest.importorskip("zenoh")
 
-from service_harness import ServiceProcess
-
 from arcf.data import data_root
 from arcf.eval import load_dataset
-from service.loadtest import markdown, run_load
+from loadtools.loadtest import markdown, run_load
+from loadtools.procs import ServiceProcess
 
 pytestmark = [pytest.mark.integration,
               pytest.mark.skipif(not (data_root() / "uav123_10fps").is_dir(),
@@ -53,7 +52,7 @@ def test_looping_replay_reinitialises_and_keeps_the_first_pass_score() -> None:
     try:
         report = run_load([svc.endpoint], seqs, streams=1, preset="bacf", fps=30.0,
                           duration=8.0, max_frames=90, loop=True, stagger=0.0,
-                          metrics_url=svc.metrics_url, service_pid=svc.proc.pid,
+                          metrics_url=svc.metrics_url, service_pid=svc.pid,
                           reference_seconds=0, progress=False)
         control = svc.metric('arcf_control_requests_total')
     finally:

@@ -9,13 +9,13 @@ while the service's memory is sampled.
 from __future__ import annotations
 
 import pytest
-from service_harness import ServiceProcess
 
 from arcf.data import data_root
 from arcf.eval import load_dataset
+from loadtools.procs import ServiceProcess
+from loadtools.stress import run_overload, run_soak
 from service.client import TrackingClient
 from service.settings import ServiceSettings
-from service.stress import run_overload, run_soak
 
 pytestmark = [pytest.mark.integration,
               pytest.mark.skipif(not (data_root() / "uav123_10fps").is_dir(),
@@ -37,7 +37,7 @@ def test_three_times_capacity(wakeboard: list) -> None:
     svc = ServiceProcess(workers=2)
     try:
         with TrackingClient(connect=[svc.endpoint]) as client:
-            r = run_overload(client, wakeboard, service_pid=svc.proc.pid,
+            r = run_overload(client, wakeboard, service_pid=svc.pid,
                              metrics_url=svc.metrics_url, preset="arcf-h", fps=FPS,
                              factor=3.0, phase_s=10.0, settle_s=2.0, step_s=5.0,
                              max_streams=10, window=30, p99_ms=P99_MS, nominal_share=0.5,
@@ -94,7 +94,7 @@ def test_soak_sessions_come_and_go(wakeboard: list) -> None:
     svc = ServiceProcess(workers=2)
     try:
         with TrackingClient(connect=[svc.endpoint]) as client:
-            r = run_soak(client, wakeboard, service_pid=svc.proc.pid,
+            r = run_soak(client, wakeboard, service_pid=svc.pid,
                          metrics_url=svc.metrics_url, preset="arcf-h", fps=FPS, streams=3,
                          duration_s=60.0, warmup_s=20.0, lifetime_s=(2.0, 5.0), window=20,
                          sample_s=1.0)

@@ -17,12 +17,13 @@ import pytest
 pytest.importorskip("zenoh")
 
 import itertools
-
-from service_harness import ServiceProcess as _Service
+from collections.abc import Sequence
 
 import arcf
 from arcf.data import data_root
 from arcf.eval import load_dataset
+from loadtools.driver import Clip, Fleet, Pacing
+from loadtools.procs import ServiceProcess as _Service
 from schemas import KeySpace
 from service.client import ServiceError, TrackingClient
 from service.decoding import decode_compressed
@@ -47,24 +48,31 @@ def frames():
     return seq, data
 
 
+def _clip(seq, data: list[bytes], box=None) -> Clip:  # type: ignore[no-untyped-def]
+    return Clip(seq.name, tuple(box or seq.init_box), tuple(data))
+
+
 def _offline(preset: str, data: list[bytes], box) -> np.ndarray:
     """The library alone on the same bytes, decoded as a worker decodes them."""
     frames = (decode_compressed(d) for d in data)
     return arcf.run_sequence(arcf.create_tracker(preset), frames, box).boxes
 
 
-def _lockstep(client, streams: dict[str, tuple[object, int]], data: list[bytes]) -> dict:
-    """Publish frame i on every stream, then wait for frame i's result from every session.
+def _lockstep(client, streams: dict[str, tuple[Clip, Sequence[str]]]) -> Fleet:
+    """Each stream replays its clip in lock-step (frame i once every session answered frame
+    i - 1) to sessions of the presets listed; the fleet is returned with its sessions live.
 
     Lock-step replay makes "one result per frame" independent of the machine's speed (a paced
     replay on a loaded machine legitimately drops frames: that is tested elsewhere)."""
-    got: dict[str, list] = {name: [] for name in streams}
-    for i, d in enumerate(data):
-        for name in streams:
-            client.publish_frame(name, data=d, seq=i)
-        for name, (results, n_sessions) in streams.items():
-            got[name] += _collect(results, n_sessions, timeout=30.0)
-    return got
+    fleet = Fleet(client, [clip for clip, _ in streams.values()], pacing=Pacing.lock_step())
+    for name, (clip, presets) in streams.items():
+        fleet.add(names=[name], clip=clip, sessions=presets, frames=len(clip))
+    assert fleet.wait_published(timeout=60) and fleet.settle(timeout=30)
+    return fleet
+
+
+def _got(fleet: Fleet, stream: str) -> list:
+    return [r.result for r in fleet.ledger[stream].received]
 
 
 def _collect(stream, n: int, timeout: float = 60.0) -> list:
@@ -79,13 +87,9 @@ def _collect(stream, n: int, timeout: float = 60.0) -> list:
 
 def test_results_equal_the_library_offline(service, frames) -> None:
     seq, data = frames
-    with TrackingClient(connect=[service.endpoint]) as client:
-        results = client.results("wb7")
-        ack = client.start("wb7", seq.init_box, preset="arcf-h", frame_seq=0)
-        got = sorted(_lockstep(client, {"wb7": (results, 1)}, data)["wb7"],
-                     key=lambda r: r.frame_seq)
-        client.stop(ack.session_id)
-        results.close()
+    with TrackingClient(connect=[service.endpoint]) as client, \
+            _lockstep(client, {"wb7": (_clip(seq, data), ["arcf-h"])}) as fleet:
+        got = sorted(_got(fleet, "wb7"), key=lambda r: r.frame_seq)
     assert [r.frame_seq for r in got] == list(range(len(data)))
     assert got[0].status == "initialized" and all(r.status == "tracking" for r in got[1:])
     assert all(r.dropped == 0 for r in got)
@@ -99,21 +103,17 @@ def test_results_equal_the_library_offline(service, frames) -> None:
 def test_two_streams_and_several_sessions_do_not_interfere(service, frames) -> None:
     seq, data = frames
     box_b = (seq.init_box[0] + 3, seq.init_box[1] + 2, seq.init_box[2], seq.init_box[3])
-    with TrackingClient(connect=[service.endpoint]) as client:
-        ra, rb = client.results("multi-a"), client.results("multi-b")
-        a1 = client.start("multi-a", seq.init_box, preset="arcf-h", frame_seq=0)
-        a2 = client.start("multi-a", seq.init_box, preset="bacf", frame_seq=0)
-        b1 = client.start("multi-b", box_b, preset="arcf-h", frame_seq=0)
-        got = _lockstep(client, {"multi-a": (ra, 2), "multi-b": (rb, 1)}, data)
-        got_a, got_b = got["multi-a"], got["multi-b"]
-        for sid in (a1.session_id, a2.session_id, b1.session_id):
-            client.stop(sid)
+    with TrackingClient(connect=[service.endpoint]) as client, \
+            _lockstep(client, {"multi-a": (_clip(seq, data), ["arcf-h", "bacf"]),
+                               "multi-b": (_clip(seq, data, box_b), ["arcf-h"])}) as fleet:
+        got_a, got_b = _got(fleet, "multi-a"), _got(fleet, "multi-b")
+        (a1, a2), (b1,) = fleet.ledger["multi-a"].sessions, fleet.ledger["multi-b"].sessions
     by_session: dict[str, list] = {}
     for r in got_a + got_b:
         by_session.setdefault(r.session_id, []).append(r)
-    expected = {a1.session_id: _offline("arcf-h", data, seq.init_box),
-                a2.session_id: _offline("bacf", data, seq.init_box),
-                b1.session_id: _offline("arcf-h", data, box_b)}
+    expected = {a1: _offline("arcf-h", data, seq.init_box),
+                a2: _offline("bacf", data, seq.init_box),
+                b1: _offline("arcf-h", data, box_b)}
     for sid, boxes in expected.items():
         rs = sorted(by_session[sid], key=lambda r: r.frame_seq)
         assert len(rs) == len(data)
@@ -195,11 +195,9 @@ def test_metrics_count_what_was_sent(service, frames) -> None:
     seq, data = frames
     before_results = service.metric("arcf_results_published_total")
     before_frames = service.metric("arcf_frames_processed_total")
-    with TrackingClient(connect=[service.endpoint]) as client:
-        results = client.results("count")
-        ack = client.start("count", seq.init_box, preset="bacf", frame_seq=0)
-        got = _lockstep(client, {"count": (results, 1)}, data[:10])["count"]
-        client.stop(ack.session_id)
+    with TrackingClient(connect=[service.endpoint]) as client, \
+            _lockstep(client, {"count": (_clip(seq, data[:10]), ["bacf"])}) as fleet:
+        got = _got(fleet, "count")
     time.sleep(0.5)
     assert len(got) == 10
     assert service.metric("arcf_results_published_total") - before_results == 10
@@ -278,9 +276,10 @@ def test_a_killed_worker_is_replaced_and_its_sessions_resume(frames) -> None:
             notices: list = []
             subs = [client.session.declare_subscriber(keys.errors(s), lambda x: notices.append(
                 str(x.key_expr))) for s in (s0, s1)]
-            client.start(s0, seq.init_box, preset="bacf", frame_seq=0)
-            client.start(s1, seq.init_box, preset="bacf", frame_seq=0)
-            _lockstep(client, {s0: (r0, 1), s1: (r1, 1)}, data[:3])
+            first = _clip(seq, data[:3])
+            _lockstep(client, {s0: (first, ["bacf"]), s1: (first, ["bacf"])})
+            for r in (r0, r1):  # the same results, queued here for the steps below
+                assert [x.frame_seq for x in _collect(r, 3, timeout=5)] == [0, 1, 2]
             victim = sorted(svc.workers)[0]
             os.kill(victim, signal.SIGKILL)
             deadline = time.monotonic() + 15
@@ -366,7 +365,8 @@ def test_signals_stop_everything(sig) -> None:
 
 def test_limits_stale_frames_and_bombs_are_refused_counted_and_harmless(frames) -> None:
     """Each refusal is a counted error with a clear code, and the sessions go on."""
-    from test_imagecheck import png_bomb
+    from loadtools.hostile import png_bomb
+
 
     seq, data = frames
     keys = KeySpace()
@@ -429,10 +429,9 @@ def test_sigterm_finishes_in_flight_frames_and_sends_final_statuses(frames) -> N
     svc = _Service()
     with TrackingClient(connect=[svc.endpoint]) as client:
         results = client.results("bye")
-        client.start("bye", seq.init_box, preset="bacf", frame_seq=0)
-        client.start("bye", seq.init_box, preset="arcf-h", frame_seq=0)
-        got = _lockstep(client, {"bye": (results, 2)}, data[:3])["bye"]
-        assert len(got) == 6
+        fleet = _lockstep(client, {"bye": (_clip(seq, data[:3]), ["bacf", "arcf-h"])})
+        assert len(_got(fleet, "bye")) == 6
+        assert len(_collect(results, 6, timeout=5)) == 6
         t0 = time.monotonic()
         svc.proc.send_signal(signal.SIGTERM)
         assert svc.proc.wait(timeout=30) == 0
@@ -446,16 +445,7 @@ def test_sigterm_finishes_in_flight_frames_and_sends_final_statuses(frames) -> N
 def test_workers_not_ready_in_time_exit_with_the_reason_instead_of_hanging() -> None:
     """A service whose workers miss the start-up deadline (here: an impossible one) exits
     non-zero saying why; it never sits alive without having printed "ready"."""
-    import os
-    import subprocess
-    import sys
-
-    env = dict(os.environ, ARCF_SERVICE_WORKER_START_S="0.001")
-    proc = subprocess.run(
-        [sys.executable, "-m", "service.app", "--listen", "tcp/127.0.0.1:0", "--workers", "1",
-         "--metrics-port", "-1"],
-        env=env, capture_output=True, text=True, timeout=60,
-        cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-    assert proc.returncode == 1
-    assert "ready" not in proc.stdout
-    assert "start-up failed: workers not ready" in proc.stderr
+    with pytest.raises(RuntimeError) as e:
+        _Service(workers=1, metrics=False, env={"ARCF_SERVICE_WORKER_START_S": "0.001"})
+    assert "exit code 1" in str(e.value)
+    assert "start-up failed: workers not ready" in str(e.value)

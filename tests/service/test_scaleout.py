@@ -9,21 +9,18 @@ from __future__ import annotations
 
 import os
 import signal
-import threading
 import time
-from collections import defaultdict
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
-from typing import Any
 
 import pytest
 
 pytest.importorskip("zenoh")
 
-from service_harness import RouterProcess, ServiceProcess, first_resumed, gaps
-
 from arcf.data import data_root
 from arcf.eval import load_dataset
+from loadtools.driver import Clip, Fleet, Pacing
+from loadtools.procs import RouterProcess, ServiceProcess
 from service.client import TrackingClient
 from service.cluster import owner
 
@@ -50,7 +47,6 @@ def pick_streams() -> list[str]:
 
 def test_instances_share_streams_fail_over_and_rebalance() -> None:
     seq = load_dataset("uav123_10fps", sequences=["truck4_1"])[0]
-    frames = [p.read_bytes() for p in seq.frames]
     streams = pick_streams()
     router = RouterProcess()
     extra = ("--lease-ms", str(int(LEASE_S * 1000)))
@@ -58,39 +54,21 @@ def test_instances_share_streams_fail_over_and_rebalance() -> None:
         instances = dict(zip(IDS, pool.map(
             lambda i: ServiceProcess("--instance-id", i, *extra, connect=router.endpoint,
                                      workers=1), IDS), strict=True))
-    results: dict[str, list[tuple[Any, float]]] = defaultdict(list)
-    lock = threading.Lock()
-    stop = threading.Event()
     client = TrackingClient(connect=[router.endpoint])
+    fleet = Fleet(client, [Clip.of(seq)], preset="bacf",
+                  pacing=Pacing.fixed_rate(FPS, aligned=True))
+    ledger = fleet.ledger
     newcomer = None
     try:
-        subs = []
-        for name in streams:
-            def on_result(r: Any, name: str = name) -> None:
-                with lock:
-                    results[name].append((r, time.monotonic()))
-            subs.append(client.results(name, callback=on_result))
         status = client.status()
         assert sorted(status.instances) == IDS
-        for name in streams:
-            client.start(name, seq.init_box, preset="bacf", session_id=f"s-{name}", frame_seq=0)
-
-        def publish() -> None:
-            t0 = time.monotonic()
-            i = 0
-            while not stop.is_set() and i < 600:  # bounded: 2 minutes at 5 fps
-                for name in streams:
-                    client.publish_frame(name, data=frames[i % len(frames)], seq=i)
-                i += 1
-                time.sleep(max(0.0, t0 + i / FPS - time.monotonic()))
-
-        publisher = threading.Thread(target=publish, daemon=True)
-        publisher.start()
+        # bounded: 2 minutes at 5 fps
+        fleet.add(names=streams, frames=600, session_id=lambda stream, _: f"s-{stream}")
         time.sleep(4.0)
 
         # 1. spread: every stream tracked, two sessions on each instance
         for name in streams:
-            assert results[name], f"no results for {name}"
+            assert ledger[name].received, f"no results for {name}"
         for i, svc in instances.items():
             assert svc.metric("arcf_active_sessions") == 2, i
         assert len(client.status().sessions) == 6  # any instance answers for all
@@ -101,18 +79,17 @@ def test_instances_share_streams_fail_over_and_rebalance() -> None:
         t_kill = time.monotonic()
         instances["inst-b"].proc.send_signal(signal.SIGKILL)
         instances["inst-b"].proc.wait(timeout=10)
-        resumed_at = first_resumed(results, lock, victim, t_kill, timeout=10)
+        resumed_at = ledger.first_resumed(victim, t_kill, timeout=10)
         assert sorted(resumed_at) == sorted(victim), "streams of the killed instance not resumed"
         failover_s = max(resumed_at.values()) - t_kill
         assert failover_s < 5.0
         time.sleep(2.0)
-        with lock:
-            for n in others:
-                assert gaps(results[n], t_kill - 1.0, time.monotonic()) == 0, n
-                assert not any(r.status.value == "resumed" for r, _ in results[n])
-            for n in victim:  # resumed from the last box, and tracking since
-                after = [r for r, t in results[n] if t > resumed_at[n]]
-                assert len(after) >= 5 and all(r.status.value == "tracking" for r in after[1:])
+        for n in others:
+            assert ledger[n].gaps(t_kill - 1.0, time.monotonic()) == 0, n
+            assert ledger[n].first_with_status("resumed", 0.0) is None, n
+        for n in victim:  # resumed from the last box, and tracking since
+            after = [r for r in ledger[n].received if r.t > resumed_at[n]]
+            assert len(after) >= 5 and all(r.status == "tracking" for r in after[1:])
         survivors = [i for i in IDS if i != "inst-b"]
         assert sum(instances[i].metric("arcf_sessions_taken_over_total")
                    for i in survivors) == len(victim)
@@ -125,44 +102,27 @@ def test_instances_share_streams_fail_over_and_rebalance() -> None:
         moving = [n for n in streams if owner(n, live) == "inst-d"]
         staying = [n for n in streams if n not in moving]
         assert moving
-        deadline = time.monotonic() + 10
-        moved: set[str] = set()
-        while time.monotonic() < deadline and len(moved) < len(moving):
-            with lock:
-                moved = {n for n in moving
-                         if any(r.status.value == "resumed" and t > t_join
-                                for r, t in results[n])}
-            time.sleep(0.05)
-        assert moved == set(moving)
+        assert set(ledger.first_resumed(moving, t_join, timeout=10)) == set(moving)
         time.sleep(2.0)
         assert newcomer.metric("arcf_active_sessions") == len(moving)
-        with lock:
-            for n in staying:
-                assert gaps(results[n], t_join, time.monotonic()) == 0, n
-                assert not any(r.status.value == "resumed" and t > t_join
-                               for r, t in results[n])
-            for n in streams:  # every session keeps producing results
-                assert any(t > time.monotonic() - 1.0 for _, t in results[n]), n
+        for n in staying:
+            assert ledger[n].gaps(t_join, time.monotonic()) == 0, n
+            assert ledger[n].first_with_status("resumed", t_join) is None, n
+        for n in streams:  # every session keeps producing results
+            assert any(r.t > time.monotonic() - 1.0 for r in ledger[n].received), n
 
         # 4. a hung instance (all its processes frozen) is detected by the Zenoh lease
-        live = [*survivors, "inst-d"]
         frozen = max(live, key=lambda i: sum(owner(n, live) == i for n in streams))
         stuck = [n for n in streams if owner(n, live) == frozen]
         procs = instances | {"inst-d": newcomer}
-        pids = [procs[frozen].proc.pid, *procs[frozen].workers]
+        pids = [procs[frozen].pid, *procs[frozen].workers]
         t_stop = time.monotonic()
         for pid in pids:
             os.kill(pid, signal.SIGSTOP)
         try:
-            deadline = t_stop + LEASE_S + 8
-            taken: set[str] = set()
-            while time.monotonic() < deadline and len(taken) < len(stuck):
-                with lock:
-                    taken = {n for n in stuck if any(r.status.value == "resumed" and t > t_stop
-                                                     for r, t in results[n])}
-                time.sleep(0.05)
+            taken = ledger.first_resumed(stuck, t_stop, timeout=LEASE_S + 8)
             hang_s = time.monotonic() - t_stop
-            assert taken == set(stuck)
+            assert set(taken) == set(stuck)
             assert hang_s >= LEASE_S * 0.5  # not before the lease could expire
         finally:
             for pid in pids:
@@ -171,7 +131,7 @@ def test_instances_share_streams_fail_over_and_rebalance() -> None:
             procs[frozen].proc.wait(timeout=10)
         print(f"failover {failover_s * 1e3:.0f} ms, hang detected in {hang_s:.1f} s")
     finally:
-        stop.set()
+        fleet.pause()
         client.close()
         for svc in [*instances.values(), *([newcomer] if newcomer else [])]:
             if svc.proc.poll() is None:

@@ -1,0 +1,277 @@
+"""The stream driver: a fleet of simulated drones publishing real frames to the service.
+
+A :class:`Clip` is what one drone replays (a real sequence's JPEG bytes, passed through as they
+are, and the box its sessions start from). A :class:`Pacing` says when a stream publishes its
+next frame. A :class:`Fleet` adds and removes streams while the service runs, each with its own
+thread and tracking sessions, and records everything in a :class:`~loadtools.ledger.Ledger`.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .ledger import Ledger, Received, StreamRecord
+
+#: spreads any number of phases evenly over a period (k * GOLDEN mod 1)
+GOLDEN = 0.6180339887498949
+
+
+@dataclass(frozen=True)
+class Clip:
+    """The frames one simulated drone replays, cycled, and the box its sessions start from."""
+
+    name: str
+    box: tuple[float, ...]
+    frames: tuple[bytes, ...]
+    #: ground truth of the sequence's frames, in publication order (frame i: row i mod len);
+    #: None for a forth-and-back clip, which is not scored
+    groundtruth: np.ndarray | None = None
+
+    @classmethod
+    def of(cls, sequence: Any, *, limit: int = 0, palindrome: bool = False) -> Clip:
+        """The first ``limit`` frames (all with 0) of an :mod:`arcf.eval` sequence. A
+        ``palindrome`` clip plays them forth and back (0 1 ... n-1 n-2 ... 1), so the target
+        moves continuously and a session never has to be re-initialised at a wrap."""
+        paths = sequence.frames[:limit] if limit else sequence.frames
+        data = [p.read_bytes() for p in paths]
+        if palindrome:
+            return cls(sequence.name, tuple(sequence.init_box), tuple(data + data[-2:0:-1]))
+        return cls(sequence.name, tuple(sequence.init_box), tuple(data),
+                   np.asarray(sequence.groundtruth[: len(data)], dtype=float))
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+
+@dataclass(frozen=True)
+class Pacing:
+    """When a stream publishes its next frame.
+
+    - **fixed rate** (``fps`` > 0): a camera. Independent drones' cameras are not
+      synchronised, so stream k's frames fall at phase ``k * GOLDEN mod 1`` of the period (even
+      for any number of streams, and for streams added later); ``aligned`` puts every stream's
+      frames at the same instants, the worst case of a synchronised fleet.
+    - **as fast as possible** (``fps`` 0, ``in_flight`` 0): a flood, for overload tests.
+    - **closed loop** (``in_flight`` > 0): frame i is sent only once frame i - in_flight has
+      a result from every session of the stream (or after ``wait_s``). With ``fps`` 0 this
+      saturates the workers without a single drop; ``in_flight`` 1 is **lock-step**, one frame
+      at a time, so latency has no queueing in it.
+    """
+
+    fps: float = 10.0
+    in_flight: int = 0
+    aligned: bool = False
+    wait_s: float = 2.0
+
+    @classmethod
+    def fixed_rate(cls, fps: float, *, aligned: bool = False) -> Pacing:
+        return cls(fps=fps, aligned=aligned)
+
+    @classmethod
+    def closed_loop(cls, in_flight: int = 1, *, fps: float = 0.0) -> Pacing:
+        return cls(fps=fps, in_flight=in_flight)
+
+    @classmethod
+    def lock_step(cls) -> Pacing:
+        return cls(fps=0.0, in_flight=1, wait_s=30.0)
+
+    def __post_init__(self) -> None:
+        if self.fps < 0 or self.in_flight < 0 or self.wait_s < 0:
+            raise ValueError(f"negative pacing: {self}")
+
+    def phase(self, k: int) -> float:
+        """Offset of stream k's frames within the period (seconds)."""
+        if self.aligned or self.fps <= 0:
+            return 0.0
+        return ((k * GOLDEN) % 1.0) / self.fps
+
+
+@dataclass
+class SimulatedStream:
+    """One simulated drone: its clip, sessions, publishing thread and ledger record."""
+
+    name: str
+    index: int
+    clip: Clip
+    record: StreamRecord
+    #: frames to publish (None: until removed)
+    limit: int | None = None
+    reinit_on_wrap: bool = False
+    acks: list[Any] = field(default_factory=list)
+    stop: threading.Event = field(default_factory=threading.Event)
+    thread: threading.Thread | None = None
+    subscription: Any = None
+
+    @property
+    def sessions(self) -> list[str]:
+        return self.record.sessions
+
+    @property
+    def sent(self) -> int:
+        return len(self.record.sent)
+
+    def publishing(self) -> bool:
+        return self.thread is not None and self.thread.is_alive()
+
+
+class Fleet:
+    """Streams of real frames that can be added and removed while the service runs.
+
+    Every stream gets ``sessions`` tracking sessions started on its clip's box at frame 0;
+    stream ``k`` replays clip ``k mod len(clips)``. Results go to the fleet's ledger (and to
+    ``on_result``, if given, e.g. to print them).
+    """
+
+    def __init__(self, client: Any, clips: Sequence[Clip], *, preset: str = "arcf-h",
+                 pacing: Pacing | None = None, ledger: Ledger | None = None,
+                 prefix: str = "stream",
+                 on_result: Callable[[SimulatedStream, Received], None] | None = None) -> None:
+        if not clips:
+            raise ValueError("a fleet needs at least one clip")
+        self.client, self.clips, self.preset = client, list(clips), preset
+        self.pacing = pacing or Pacing()
+        self.ledger = ledger or Ledger()
+        self.prefix, self.on_result = prefix, on_result
+        self.live: list[SimulatedStream] = []
+        self.ended: list[SimulatedStream] = []
+        self.sessions_started = 0
+        self.sessions_stopped = 0
+        self._count = 0
+        self._epoch = time.monotonic()  # every stream's frame instants count from here
+
+    @property
+    def fps(self) -> float:
+        return self.pacing.fps
+
+    def add(self, n: int = 1, *, sessions: int | Sequence[str] = 1,
+            names: Sequence[str] | None = None, clip: Clip | None = None,
+            frames: int | None = None, reinit_on_wrap: bool = False, delay: float = 0.0,
+            stagger: float = 0.0, session_id: Callable[[str, int], str] | None = None
+            ) -> list[SimulatedStream]:
+        """Start ``n`` streams (or one per name of ``names``: chosen ids, e.g. to reuse one), each
+        with ``sessions`` sessions of the fleet's preset (or one per preset listed) and
+        replaying ``clip`` (default: the fleet's clips in turn), publishing ``frames`` frames
+        (None: until removed); the j-th of them starts
+        ``delay + j * stagger`` s from now (at its next frame instant). With
+        ``reinit_on_wrap`` the sessions are re-initialised on the clip's box each time it
+        starts over (the one frame where that box is right).
+        ``session_id(stream, j)`` names the sessions (default: the service's)."""
+        out = []
+        for j in range(len(names) if names is not None else n):
+            k = self._count
+            self._count += 1
+            replayed = clip or self.clips[k % len(self.clips)]
+            st_name = names[j] if names is not None else f"{self.prefix}-{k}-{replayed.name}"
+            st = SimulatedStream(st_name, k, replayed, self.ledger.open(st_name), limit=frames,
+                                 reinit_on_wrap=reinit_on_wrap)
+
+            def deliver(result: Any, st: SimulatedStream = st) -> None:
+                st.record.on_result(result)
+                if self.on_result is not None:
+                    self.on_result(st, st.record.received[-1])
+
+            st.subscription = self.client.results(st.name, callback=deliver)
+            presets = [self.preset] * sessions if isinstance(sessions, int) else sessions
+            for s, preset in enumerate(presets):
+                ack = self.client.start(st.name, replayed.box, preset=preset, frame_seq=0,
+                                        session_id=session_id(st.name, s) if session_id else None)
+                st.acks.append(ack)
+                st.record.sessions.append(ack.session_id)
+                self.sessions_started += 1
+            st.thread = threading.Thread(target=self._publish, args=(st, delay + j * stagger),
+                                         daemon=True, name=f"publish-{st.name}")
+            st.thread.start()
+            self.live.append(st)
+            out.append(st)
+        return out
+
+    def _publish(self, st: SimulatedStream, delay: float) -> None:
+        pacing, rec = self.pacing, st.record
+        n_frames = len(st.clip)
+        start = time.monotonic() + delay
+        # fixed rate: frame i at the (first_slot + i)-th instant of the stream's phase
+        period = 1.0 / pacing.fps if pacing.fps > 0 else 0.0
+        phase = self._epoch + pacing.phase(st.index)
+        first_slot = math.ceil((start - phase) / period) if period else 0
+        i = 0
+        while not st.stop.is_set() and (st.limit is None or i < st.limit):
+            due = phase + (first_slot + i) * period if period else start
+            delay_s = due - time.monotonic()
+            if delay_s > 0 and st.stop.wait(delay_s):
+                break
+            if st.reinit_on_wrap and i and i % n_frames == 0:
+                for sid in st.sessions:  # a new box on this frame: the tracker starts over
+                    self.client.reinit(sid, st.clip.box, frame_seq=i)
+            if pacing.in_flight and i >= pacing.in_flight:
+                rec.wait_answered(i - pacing.in_flight, len(st.sessions), pacing.wait_s)
+            self.client.publish_frame(st.name, data=st.clip.frames[i % n_frames], seq=i)
+            rec.on_sent(i)
+            i += 1
+
+    def wait_published(self, timeout: float) -> bool:
+        """Wait until every bounded stream has published its frames (False on timeout)."""
+        deadline = time.monotonic() + timeout
+        for st in self.live:
+            if st.thread is not None:
+                st.thread.join(max(0.0, deadline - time.monotonic()))
+        return not any(st.publishing() for st in self.live)
+
+    def settle(self, timeout: float = 10.0) -> bool:
+        """Wait until every session has answered its stream's last frame sent (the frames
+        still queued when publishing stopped); False if some never did within ``timeout``."""
+        deadline = time.monotonic() + timeout
+        for st in self.live:
+            if st.sent:
+                last = st.record.sent[-1][0]
+                if not st.record.wait_answered(last, len(st.sessions),
+                                               max(0.0, deadline - time.monotonic())):
+                    return False
+        return True
+
+    def pause(self, streams: list[SimulatedStream] | None = None) -> None:
+        """Stop publishing (sessions stay)."""
+        chosen = list(self.live) if streams is None else streams
+        for st in chosen:
+            st.stop.set()
+        for st in chosen:
+            if st.thread is not None:
+                st.thread.join(timeout=5 + self.pacing.wait_s)
+
+    def remove(self, n: int = 1, *, streams: list[SimulatedStream] | None = None) -> None:
+        """Stop ``streams`` (default: the ``n`` newest): publishing stops, then the sessions."""
+        chosen = streams if streams is not None else self.live[-n:] if n else []
+        self.pause(chosen)
+        for st in chosen:
+            for sid in st.sessions:
+                self.client.stop(sid)
+                self.sessions_stopped += 1
+            time.sleep(0.05)  # the "stopped" result is on its way
+            st.subscription.close()
+            self.live.remove(st)
+            self.ended.append(st)
+
+    def close(self) -> None:
+        self.remove(streams=list(self.live))
+
+    def __enter__(self) -> Fleet:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------ measurements
+    def streams(self) -> list[SimulatedStream]:
+        return self.ended + self.live
+
+    def window(self, t0: float, t1: float, streams: list[SimulatedStream] | None = None
+               ) -> dict[str, Any]:
+        """:meth:`Ledger.window` of these streams (default: all, past and present)."""
+        chosen = self.streams() if streams is None else streams
+        return self.ledger.window(t0, t1, [st.record for st in chosen])

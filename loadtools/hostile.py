@@ -1,0 +1,23 @@
+"""Payloads a hostile (or merely broken) ground station sends, for the tests and tools that
+check the service refuses them cleanly."""
+
+from __future__ import annotations
+
+import struct
+import zlib
+
+
+def png_bomb(width: int, height: int) -> bytes:
+    """A valid grayscale PNG of width x height zeros: tiny on the wire, huge decoded (a
+    decompression bomb: 10000 x 10000 is 100 MB of pixels in about 100 KB)."""
+
+    def chunk(kind: bytes, body: bytes) -> bytes:
+        return (struct.pack(">I", len(body)) + kind + body
+                + struct.pack(">I", zlib.crc32(kind + body) & 0xFFFFFFFF))
+
+    comp = zlib.compressobj(9)
+    row = b"\x00" * (width + 1)  # filter byte + pixels
+    idat = b"".join(comp.compress(row) for _ in range(height)) + comp.flush()
+    ihdr = struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0)
+    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", idat)
+            + chunk(b"IEND", b""))

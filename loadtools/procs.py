@@ -1,0 +1,134 @@
+"""Real ``arcf-service`` and ``arcf-router`` processes on free loopback ports: the one way the
+load tools, the benchmarks and the integration tests start them.
+
+Each runs the installed program (``python -m service.app`` of this interpreter, from any working
+directory), waits for its "ready" line and stops it with SIGTERM.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+from collections.abc import Mapping
+from pathlib import Path
+
+from service.scrape import scrape
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def worker_pids(pid: int) -> set[int]:
+    """Worker processes of the service: spawned children (not multiprocessing's tracker)."""
+    out: set[int] = set()
+    for task in Path(f"/proc/{pid}/task").glob("*"):
+        with contextlib.suppress(OSError):
+            out |= {int(p) for p in (task / "children").read_text().split()}
+    workers = set()
+    for child in out:
+        with contextlib.suppress(OSError):
+            if b"spawn_main" in Path(f"/proc/{child}/cmdline").read_bytes():
+                workers.add(child)
+    return workers
+
+
+class _Program:
+    """A console program of this package started as ``python -m <module>``, ready when its
+    first stdout line says so."""
+
+    def __init__(self, module: str, args: list[str], *, quiet: bool,
+                 env: Mapping[str, str] | None) -> None:
+        # the log goes to a file, not a pipe: nobody reads a pipe during a long run, and a
+        # full pipe would block the program's logging threads (and with them the program)
+        self._log = tempfile.TemporaryFile(mode="w+") if quiet else None  # noqa: SIM115
+        self.proc = subprocess.Popen([sys.executable, "-m", module, *args],
+                                     stdout=subprocess.PIPE, stderr=self._log, text=True,
+                                     env={**os.environ, **(env or {})})
+        assert self.proc.stdout is not None
+        self.ready_line = self.proc.stdout.readline().strip()
+        if "ready" not in self.ready_line:
+            try:  # it exits by itself when it knows why it cannot start
+                code = self.proc.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                code = self.proc.wait(timeout=10)
+            self.proc.stdout.close()
+            raise RuntimeError(f"{module} did not start (exit code {code}): "
+                               f"{self.ready_line!r} {self.log()}")
+
+    @property
+    def pid(self) -> int:
+        return self.proc.pid
+
+    def log(self) -> str:
+        """What the program wrote to stderr so far (empty unless ``quiet``)."""
+        if self._log is None:
+            return ""
+        self._log.flush()
+        self._log.seek(0)
+        return self._log.read()
+
+    def stop(self) -> int:
+        """SIGTERM, then its exit code (a clean shutdown is 0)."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+        code = self.proc.wait(timeout=30)
+        if self.proc.stdout is not None:
+            self.proc.stdout.close()
+        if self._log is not None:
+            self._log.close()
+            self._log = None
+        return code
+
+    def __enter__(self) -> _Program:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+
+class ServiceProcess(_Program):
+    """One ``arcf-service``: by default with its embedded router listening on ``listen`` (a free
+    loopback port unless given); with ``connect``, a client-mode instance of a multi-instance
+    deployment. Metrics on a free port unless ``metrics`` is False."""
+
+    def __init__(self, *extra: str, connect: str | None = None, listen: str | None = None,
+                 workers: int = 2, metrics: bool = True, quiet: bool = True,
+                 env: Mapping[str, str] | None = None) -> None:
+        if connect:
+            self.endpoint = connect
+            where = ["--mode", "client", "--connect", connect]
+        else:
+            self.endpoint = listen or f"tcp/127.0.0.1:{free_port()}"
+            where = ["--listen", self.endpoint]
+        metrics_port = free_port() if metrics else -1
+        self.metrics_url = f"http://127.0.0.1:{metrics_port}/metrics" if metrics else None
+        super().__init__("service.app", [*where, "--workers", str(workers), "--metrics-port",
+                                         str(metrics_port), *extra], quiet=quiet, env=env)
+        self.workers = worker_pids(self.proc.pid)
+
+    def metric(self, name: str) -> float:
+        """Sum of every series of a metric (all label values), scraped over HTTP."""
+        return scrape(self.metrics_url).get(name, 0.0)
+
+    def __enter__(self) -> ServiceProcess:
+        return self
+
+
+class RouterProcess(_Program):
+    """A plain Zenoh router (``arcf-router``) on a free loopback port."""
+
+    def __init__(self, *, quiet: bool = True) -> None:
+        self.endpoint = f"tcp/127.0.0.1:{free_port()}"
+        super().__init__("service.router", ["--listen", self.endpoint], quiet=quiet, env=None)
+
+    def __enter__(self) -> RouterProcess:
+        return self
