@@ -162,9 +162,8 @@ def run_overload(client: Any, sequences: list[Any], *, service_pid: int,
     shared machine's noise alone makes frames drop. ``capacity_from="throughput"`` sizes the
     capacity with :func:`saturation_capacity` instead of the latency ramp."""
     fleet = _stress_fleet(client, sequences, preset, fps, window)
-    memory = MemorySampler(service_pid, interval=1.0).start()
     before = scrape(metrics_url)
-    try:
+    with MemorySampler(service_pid, interval=1.0) as memory, fleet:
         t_ramp = time.monotonic()
         if capacity is None and capacity_from == "throughput":
             capacity = saturation_capacity(fleet)
@@ -198,10 +197,6 @@ def run_overload(client: Any, sequences: list[Any], *, service_pid: int,
         marks["end"] = time.monotonic()
         fleet.close()
         time.sleep(0.5)
-    finally:
-        memory.stop()
-        if fleet.live:
-            fleet.close()
     delta = _metrics_delta(before, metrics_url)
 
     def phase(name: str, start: str, end: str, streams: list[SimulatedStream] | None = None
@@ -256,7 +251,7 @@ def run_soak(client: Any, sequences: list[Any], *, service_pid: int,
     stream that ended, and sessions are re-initialised each time their clip starts over."""
     rng = random.Random(seed)
     fleet = _stress_fleet(client, sequences, preset, fps, window)
-    memory = MemorySampler(service_pid, interval=sample_s).start()
+    memory = MemorySampler(service_pid, interval=sample_s)
     before = scrape(metrics_url)
     deadline: dict[str, float] = {}
     t_start = time.monotonic()
@@ -276,7 +271,7 @@ def run_soak(client: Any, sequences: list[Any], *, service_pid: int,
         deadline[st.name] = time.monotonic() + life
         started += 1
 
-    try:
+    with memory, fleet:
         for _ in range(streams):
             spawn()
         next_report = t_start + 60
@@ -293,10 +288,6 @@ def run_soak(client: Any, sequences: list[Any], *, service_pid: int,
                     f"anonymous memory {m[1]:.1f} MB")
         fleet.close()
         time.sleep(1.0)
-    finally:
-        memory.stop()
-        if fleet.live:
-            fleet.close()
     delta = _metrics_delta(before, metrics_url)
     # warm: the first window after warm-up; end: the same length at the end of the run
     span = min(max(60.0, 10 * sample_s), (duration_s - warmup_s) / 3)

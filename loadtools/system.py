@@ -136,6 +136,12 @@ class MemorySampler:
         self._stop.set()
         self._thread.join(timeout=5 + self.interval)
 
+    def __enter__(self) -> MemorySampler:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
     def between(self, t0: float, t1: float) -> np.ndarray:
         """Samples in [t0, t1], one row per sample, columns as in COLUMNS."""
         rows = [s for s in self.samples if t0 <= s[0] <= t1]
