@@ -27,7 +27,8 @@ from typing import Any
 
 from arcf.data import data_root
 from arcf.eval import load_dataset
-from loadtools.driver import Clip, Fleet, Pacing
+from loadtools.compose import INSTANCES, ComposeStack, stack_env
+from loadtools.driver import Clip, failover_fleet
 from loadtools.procs import free_port
 from service.client import TrackingClient
 from service.cluster import owner
@@ -35,46 +36,16 @@ from service.cluster import owner
 ROOT = Path(__file__).resolve().parent.parent
 
 DEPLOY = ROOT / "deploy"
-INSTANCES = ("arcf-1", "arcf-2")
 
 
-class Compose:
-    def __init__(self, project: str, env: dict[str, str]) -> None:
-        self.project, self.env = project, env
-
-    def __call__(self, *args: str, timeout: float = 1800) -> str:
-        cmd = ["docker-compose", "-f", str(DEPLOY / "compose.yaml"), "-f",
-               str(DEPLOY / "compose.local.yaml"), "-p", self.project, *args]
-        out = subprocess.run(cmd, env=self.env, capture_output=True, text=True, timeout=timeout)
-        if out.returncode != 0:
-            raise RuntimeError(f"{' '.join(args)}: {out.stderr[-2000:]}")
-        return out.stdout
-
-    def container(self, service: str) -> str:
-        return self("ps", "-q", service).strip()
-
-    def health(self, service: str) -> str:
-        out = subprocess.run(["docker", "inspect", "--format", "{{.State.Health.Status}}",
-                              self.container(service)], capture_output=True, text=True)
-        return out.stdout.strip()
-
-    def wait_healthy(self, services: tuple[str, ...], timeout: float = 120) -> float:
-        t0 = time.monotonic()
-        while time.monotonic() - t0 < timeout:
-            if all(self.health(s) == "healthy" for s in services):
-                return time.monotonic() - t0
-            time.sleep(0.5)
-        raise RuntimeError(f"{services} not healthy within {timeout} s")
-
-
-def trials(args: argparse.Namespace, compose: Compose, router_port: int) -> list[dict[str, Any]]:
+def trials(args: argparse.Namespace, compose: ComposeStack, router_port: int
+           ) -> list[dict[str, Any]]:
     seq = load_dataset("uav123_10fps", sequences=["truck4_1"])[0]
     rows = []
     with TrackingClient(connect=[f"tcp/127.0.0.1:{router_port}"]) as client, \
-            Fleet(client, [Clip.of(seq)], preset=args.preset, prefix="cam",
-                  pacing=Pacing.fixed_rate(args.fps, aligned=True)) as fleet:
-        fleet.add(args.streams, frames=int(args.max_seconds * args.fps),
-                  session_id=lambda stream, _: f"s-{stream}")
+            failover_fleet(client, Clip.of(seq), [f"cam-{k}" for k in range(args.streams)],
+                           preset=args.preset, fps=args.fps,
+                           frames=int(args.max_seconds * args.fps)) as fleet:
         streams = [st.name for st in fleet.live]
         time.sleep(4.0)
         for trial in range(args.trials):
@@ -87,7 +58,8 @@ def trials(args: argparse.Namespace, compose: Compose, router_port: int) -> list
                 t0 = time.monotonic()
                 subprocess.run(["docker", how, cid], check=True, capture_output=True)
                 rows.append({"trial": trial, "event": f"docker {how}",
-                             **fleet.ledger.after_move(owned, others, t0, timeout=15)})
+                             **fleet.ledger.after_move(owned, others, t0, timeout=15,
+                                                      gaps_from=t0 - 1.0)})
                 print(json.dumps(rows[-1]), file=sys.stderr)
                 t0 = time.monotonic()
                 if how == "kill":
@@ -120,10 +92,9 @@ def main() -> int:
     subprocess.run([sys.executable, str(DEPLOY / "offline.py")], check=True)
     prepare_s = time.monotonic() - t0
     router_port, prometheus_port = free_port(), free_port()
-    env = dict(os.environ, ARCF_PUBLISH_ADDRESS="127.0.0.1", ARCF_ROUTER_PORT=str(router_port),
-               ARCF_PROMETHEUS_PORT=str(prometheus_port), ARCF_DATA=str(data_root()),
-               ARCF_WORKERS_PER_INSTANCE="1", ARCF_VERSION="bench")
-    compose = Compose(f"arcfbench{os.getpid()}", env)
+    env = stack_env(os.environ, router_port=router_port, prometheus_port=prometheus_port,
+                    data=data_root(), version="bench")
+    compose = ComposeStack(f"arcfbench{os.getpid()}", env, DEPLOY, prometheus_port)
     builds = {}
     if args.cold:
         t0 = time.monotonic()
@@ -146,7 +117,7 @@ def main() -> int:
         up_s = time.monotonic() - t0
         rows = trials(args, compose, router_port)
     finally:
-        compose("down", "-v", "--remove-orphans", timeout=300)
+        compose.down()
     print(f"machine: {os.cpu_count()} cores; prepare (base + wheelhouse, warm): {prepare_s:.0f} s;"
           f" up to both healthy: {up_s:.0f} s\n")
     print("| image | size (MB) |\n| --- | --- |")

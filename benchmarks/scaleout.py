@@ -23,15 +23,14 @@ import json
 import os
 import signal
 import sys
-import threading
 import time
 from pathlib import Path
 from typing import Any
 
 from arcf.eval import load_dataset
-from loadtools.driver import Clip, Fleet, Pacing
+from loadtools.driver import Clip, Fleet, failover_fleet
 from loadtools.loadtest import run_load
-from loadtools.procs import RouterProcess, ServiceProcess
+from loadtools.procs import RouterProcess, ServiceProcess, start_instances
 from loadtools.system import process_tree
 from service.client import TrackingClient
 from service.cluster import owner
@@ -50,20 +49,8 @@ class Instances:
         """Start ``n`` instances side by side; their ids."""
         names = [f"inst-{self._count + k}" for k in range(n)]
         self._count += n
-        started: list[tuple[str, ServiceProcess]] = []
-
-        def start(name: str) -> None:
-            started.append((name, ServiceProcess("--instance-id", name, "--lease-ms",
-                                                 str(self.lease_ms),
-                                                 connect=self.router.endpoint, workers=1,
-                                                 quiet=False)))
-
-        threads = [threading.Thread(target=start, args=(name,)) for name in names]
-        for t in threads:
-            t.start()
-        for t in threads:
-            t.join()
-        self.members.update(started)
+        self.members.update(start_instances(names, self.router.endpoint, "--lease-ms",
+                                            str(self.lease_ms), quiet=False))
         return names
 
     def live(self) -> list[str]:
@@ -76,13 +63,11 @@ class Instances:
 
 
 def paced_streams(client: TrackingClient, seq: Any, args: argparse.Namespace) -> Fleet:
-    """``args.streams`` streams of the sequence at ``args.fps``, frames of every stream at the
-    same instants, each with one session named after its stream (for the ownership hash)."""
-    fleet = Fleet(client, [Clip.of(seq)], preset=args.preset,
-                  pacing=Pacing.fixed_rate(args.fps, aligned=True), prefix="cam")
-    fleet.add(args.streams, frames=int(args.max_seconds * args.fps),
-              session_id=lambda stream, _: f"s-{stream}")
-    return fleet
+    """``args.streams`` streams ``cam-0``, ``cam-1``, ... at ``args.fps`` (see
+    :func:`loadtools.driver.failover_fleet`)."""
+    return failover_fleet(client, Clip.of(seq), [f"cam-{k}" for k in range(args.streams)],
+                          preset=args.preset, fps=args.fps,
+                          frames=int(args.max_seconds * args.fps))
 
 
 def failover(args: argparse.Namespace, seq: Any) -> list[dict[str, Any]]:
@@ -109,7 +94,7 @@ def failover(args: argparse.Namespace, seq: Any) -> list[dict[str, Any]]:
                     row = {"trial": trial, "event": how, "instances_before": len(live),
                            **fleet.ledger.after_move(
                                owned, [n for n in streams if n not in owned], t_kill,
-                               timeout=args.lease_ms / 1e3 + 10)}
+                               timeout=args.lease_ms / 1e3 + 10, gaps_from=t_kill - 1.0)}
                     rows.append(row)
                     print(json.dumps(row), file=sys.stderr)
                     if how == "SIGSTOP":
@@ -143,11 +128,10 @@ def throughput(args: argparse.Namespace, seq: Any) -> list[dict[str, Any]]:
         router = RouterProcess()
         instances = []
         try:
-            for k in range(n_instances):
-                # closed-loop streams outrun the per-stream rate limit: lifted for throughput
-                instances.append(ServiceProcess("--instance-id", f"tp-{k}", "--max-stream-fps",
-                                                "10000", connect=router.endpoint,
-                                                workers=workers, quiet=False))
+            # closed-loop streams outrun the per-stream rate limit: lifted for throughput
+            instances = list(start_instances([f"tp-{k}" for k in range(n_instances)],
+                                             router.endpoint, "--max-stream-fps", "10000",
+                                             workers=workers, quiet=False).values())
             r = run_load([router.endpoint], [seq], streams=args.streams, preset=args.preset,
                          fps=0, in_flight=1, loop=True, duration=args.throughput_seconds,
                          offline=False, reference_seconds=0, progress=False)

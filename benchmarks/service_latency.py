@@ -38,13 +38,16 @@ def library(preset: str, clip: Clip) -> np.ndarray:
 
 
 def through_service(client: TrackingClient, preset: str, clip: Clip) -> np.ndarray:
-    """Seconds from capture to result received, one frame in flight (lock-step)."""
-    with Fleet(client, [clip], preset=preset, pacing=Pacing.lock_step(),
-               prefix=preset) as fleet:
-        (stream,) = fleet.add(1, frames=len(clip))
+    """Seconds from capture to result received per frame, one frame in flight (lock-step)."""
+    with Fleet(client, [clip], preset=preset, pacing=Pacing.lock_step()) as fleet:
+        (stream,) = fleet.add(names=[f"{clip.name}-{preset}"], frames=len(clip))
         fleet.wait_published(timeout=30.0 * len(clip))
         fleet.settle(timeout=30)
-    return np.array([r.latency_s for r in stream.record.received])
+    got = sorted(stream.record.received, key=lambda r: r.frame_seq)
+    if [r.frame_seq for r in got] != list(range(len(clip))):
+        raise RuntimeError(f"{stream.name}: not one result per frame "
+                           f"({len(got)} results for {len(clip)} frames)")
+    return np.array([r.latency_s for r in got])
 
 
 def main() -> int:
@@ -56,7 +59,6 @@ def main() -> int:
     cv2.setNumThreads(1)
     svc = ServiceProcess(workers=os.cpu_count() or 1, metrics=False, quiet=False,
                          env={"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"})
-    client = TrackingClient(connect=[svc.endpoint])
     print(f"# {svc.ready_line}")
     print(f"Machine: {os.cpu_count()} CPUs, {cpu_model()}; lock-step replay, "
           "one frame in flight; times in ms per frame.\n")
@@ -64,6 +66,7 @@ def main() -> int:
           "through the service: capture -> result, mean / p50 / p99 | overhead, mean / p50 |")
     print("| --- | --- | --- | --- | --- | --- |")
     try:
+        client = TrackingClient(connect=[svc.endpoint])
         for spec in args.sequences.split(","):
             ds, name = spec.split(":")
             (seq,) = load_dataset(ds, sequences=[name])
@@ -77,8 +80,8 @@ def main() -> int:
                       f"{through.mean():.1f} / {np.percentile(through, 50):.1f} / "
                       f"{np.percentile(through, 99):.1f} | {d.mean():.1f} / "
                       f"{np.percentile(d, 50):.1f} |", flush=True)
-    finally:
         client.close()
+    finally:
         svc.stop()
     return 0
 

@@ -92,6 +92,18 @@ class Pacing:
             return 0.0
         return ((k * GOLDEN) % 1.0) / self.fps
 
+    def schedule(self, k: int, epoch: float, start: float) -> Callable[[int], float]:
+        """When stream k publishes its frame i (monotonic s), given the fleet's ``epoch`` and
+        the earliest time it may start: fixed-rate frames fall on the stream's phase of the
+        period counted from the epoch, from the first such instant at or after ``start``;
+        otherwise every frame is due at once (the closed loop waits by itself)."""
+        if self.fps <= 0:
+            return lambda i: start
+        period = 1.0 / self.fps
+        phase = epoch + self.phase(k)
+        first_slot = math.ceil((start - phase) / period - 1e-9)
+        return lambda i: phase + (first_slot + i) * period
+
 
 @dataclass
 class SimulatedStream:
@@ -126,7 +138,8 @@ class Fleet:
 
     Every stream gets ``sessions`` tracking sessions started on its clip's box at frame 0;
     stream ``k`` replays clip ``k mod len(clips)``. Results go to the fleet's ledger (and to
-    ``on_result``, if given, e.g. to print them).
+    ``on_result``, if given, e.g. to print them). Streams added with ``hold`` wait for
+    :meth:`release`, so that a run can start every session first and all streams together.
     """
 
     def __init__(self, client: Any, clips: Sequence[Clip], *, preset: str = "arcf-h",
@@ -143,8 +156,12 @@ class Fleet:
         self.ended: list[SimulatedStream] = []
         self.sessions_started = 0
         self.sessions_stopped = 0
+        #: sessions whose stop request failed (e.g. during a takeover), with the error
+        self.stop_errors: list[tuple[str, str]] = []
         self._count = 0
         self._epoch = time.monotonic()  # every stream's frame instants count from here
+        self._released = threading.Event()
+        self._released_at = 0.0
 
     @property
     def fps(self) -> float:
@@ -153,109 +170,140 @@ class Fleet:
     def add(self, n: int = 1, *, sessions: int | Sequence[str] = 1,
             names: Sequence[str] | None = None, clip: Clip | None = None,
             frames: int | None = None, reinit_on_wrap: bool = False, delay: float = 0.0,
-            stagger: float = 0.0, session_id: Callable[[str, int], str] | None = None
+            stagger: float = 0.0, hold: bool = False,
+            session_id: Callable[[str, int], str] | None = None
             ) -> list[SimulatedStream]:
         """Start ``n`` streams (or one per name of ``names``: chosen ids, e.g. to reuse one), each
         with ``sessions`` sessions of the fleet's preset (or one per preset listed) and
         replaying ``clip`` (default: the fleet's clips in turn), publishing ``frames`` frames
-        (None: until removed); the j-th of them starts
-        ``delay + j * stagger`` s from now (at its next frame instant). With
+        (None: until removed); the j-th of them starts ``delay + j * stagger`` s from now, or
+        from :meth:`release` with ``hold``, at its next frame instant. With
         ``reinit_on_wrap`` the sessions are re-initialised on the clip's box each time it
-        starts over (the one frame where that box is right).
-        ``session_id(stream, j)`` names the sessions (default: the service's)."""
+        starts over (the one frame where that box is right). ``session_id(stream, j)`` names
+        the sessions (default: the service's). If a session cannot be started, the stream's
+        other sessions are stopped again and the error is raised."""
         out = []
         for j in range(len(names) if names is not None else n):
             k = self._count
             self._count += 1
-            replayed = clip or self.clips[k % len(self.clips)]
+            replayed = clip if clip is not None else self.clips[k % len(self.clips)]
             st_name = names[j] if names is not None else f"{self.prefix}-{k}-{replayed.name}"
             st = SimulatedStream(st_name, k, replayed, self.ledger.open(st_name), limit=frames,
                                  reinit_on_wrap=reinit_on_wrap)
 
             def deliver(result: Any, st: SimulatedStream = st) -> None:
-                st.record.on_result(result)
-                if self.on_result is not None:
-                    self.on_result(st, st.record.received[-1])
+                got = st.record.on_result(result)
+                if got is not None and self.on_result is not None:
+                    self.on_result(st, got)
 
             st.subscription = self.client.results(st.name, callback=deliver)
             presets = [self.preset] * sessions if isinstance(sessions, int) else sessions
-            for s, preset in enumerate(presets):
-                ack = self.client.start(st.name, replayed.box, preset=preset, frame_seq=0,
-                                        session_id=session_id(st.name, s) if session_id else None)
-                st.acks.append(ack)
-                st.record.sessions.append(ack.session_id)
-                self.sessions_started += 1
-            st.thread = threading.Thread(target=self._publish, args=(st, delay + j * stagger),
+            try:
+                for s, preset in enumerate(presets):
+                    ack = self.client.start(
+                        st.name, replayed.box, preset=preset, frame_seq=0,
+                        session_id=session_id(st.name, s) if session_id else None)
+                    st.acks.append(ack)
+                    st.record.add_session(ack.session_id)
+                    self.sessions_started += 1
+            except BaseException:
+                self._stop_sessions(st)
+                raise
+            st.thread = threading.Thread(target=self._publish,
+                                         args=(st, delay + j * stagger, hold),
                                          daemon=True, name=f"publish-{st.name}")
             st.thread.start()
             self.live.append(st)
             out.append(st)
         return out
 
-    def _publish(self, st: SimulatedStream, delay: float) -> None:
+    def release(self) -> float:
+        """Let the streams added with ``hold`` start; the time they start from."""
+        self._released_at = time.monotonic()
+        self._released.set()
+        return self._released_at
+
+    def _publish(self, st: SimulatedStream, delay: float, hold: bool) -> None:
         pacing, rec = self.pacing, st.record
+        if hold:
+            while not self._released.wait(0.05):
+                if st.stop.is_set():
+                    return
+        base = self._released_at if hold else time.monotonic()
+        due = pacing.schedule(st.index, self._epoch, base + delay)
         n_frames = len(st.clip)
-        start = time.monotonic() + delay
-        # fixed rate: frame i at the (first_slot + i)-th instant of the stream's phase
-        period = 1.0 / pacing.fps if pacing.fps > 0 else 0.0
-        phase = self._epoch + pacing.phase(st.index)
-        first_slot = math.ceil((start - phase) / period) if period else 0
         i = 0
-        while not st.stop.is_set() and (st.limit is None or i < st.limit):
-            due = phase + (first_slot + i) * period if period else start
-            delay_s = due - time.monotonic()
-            if delay_s > 0 and st.stop.wait(delay_s):
-                break
+        while st.limit is None or i < st.limit:
+            wait_s = due(i) - time.monotonic()
+            if st.stop.wait(max(wait_s, 0.0)):
+                return
             if st.reinit_on_wrap and i and i % n_frames == 0:
                 for sid in st.sessions:  # a new box on this frame: the tracker starts over
                     self.client.reinit(sid, st.clip.box, frame_seq=i)
-            if pacing.in_flight and i >= pacing.in_flight:
-                rec.wait_answered(i - pacing.in_flight, len(st.sessions), pacing.wait_s)
+            if pacing.in_flight and i >= pacing.in_flight:  # closed loop: frame i - in_flight
+                wanted, count = i - pacing.in_flight, len(st.sessions)
+                rec.wait(lambda w=wanted, c=count: rec.answered(w) >= c
+                         or st.stop.is_set(), pacing.wait_s)
+            if st.stop.is_set():
+                return
             self.client.publish_frame(st.name, data=st.clip.frames[i % n_frames], seq=i)
             rec.on_sent(i)
             i += 1
 
     def wait_published(self, timeout: float) -> bool:
-        """Wait until every bounded stream has published its frames (False on timeout)."""
+        """Wait until every stream with a frame count has published them (False on timeout;
+        streams without a count are not waited for)."""
         deadline = time.monotonic() + timeout
-        for st in self.live:
-            if st.thread is not None:
-                st.thread.join(max(0.0, deadline - time.monotonic()))
-        return not any(st.publishing() for st in self.live)
+        bounded = [st for st in self.live if st.limit is not None and st.thread is not None]
+        for st in bounded:
+            assert st.thread is not None
+            st.thread.join(max(0.0, deadline - time.monotonic()))
+        return not any(st.publishing() for st in bounded)
 
     def settle(self, timeout: float = 10.0) -> bool:
         """Wait until every session has answered its stream's last frame sent (the frames
         still queued when publishing stopped); False if some never did within ``timeout``."""
         deadline = time.monotonic() + timeout
         for st in self.live:
+            rec = st.record
             if st.sent:
-                last = st.record.sent[-1][0]
-                if not st.record.wait_answered(last, len(st.sessions),
-                                               max(0.0, deadline - time.monotonic())):
+                last, count = rec.sent[-1][0], len(st.sessions)
+                if not rec.wait(lambda r=rec, s=last, c=count: r.answered(s) >= c,
+                                deadline - time.monotonic()):
                     return False
         return True
 
     def pause(self, streams: list[SimulatedStream] | None = None) -> None:
-        """Stop publishing (sessions stay)."""
+        """Stop publishing (sessions stay); a closed loop waiting for an answer stops at
+        once."""
         chosen = list(self.live) if streams is None else streams
         for st in chosen:
             st.stop.set()
+            st.record.wake()
         for st in chosen:
             if st.thread is not None:
-                st.thread.join(timeout=5 + self.pacing.wait_s)
+                st.thread.join(timeout=10.0)  # at most one reinit request (5 s) in progress
 
     def remove(self, n: int = 1, *, streams: list[SimulatedStream] | None = None) -> None:
-        """Stop ``streams`` (default: the ``n`` newest): publishing stops, then the sessions."""
+        """Stop ``streams`` (default: the ``n`` newest): publishing stops, then the sessions.
+        A session whose stop fails is recorded in ``stop_errors``; the rest are stopped."""
         chosen = streams if streams is not None else self.live[-n:] if n else []
         self.pause(chosen)
         for st in chosen:
-            for sid in st.sessions:
-                self.client.stop(sid)
-                self.sessions_stopped += 1
-            time.sleep(0.05)  # the "stopped" result is on its way
-            st.subscription.close()
+            self._stop_sessions(st)
             self.live.remove(st)
             self.ended.append(st)
+
+    def _stop_sessions(self, st: SimulatedStream) -> None:
+        try:
+            for sid in st.sessions:
+                try:
+                    self.client.stop(sid)
+                    self.sessions_stopped += 1
+                except Exception as exc:  # e.g. a takeover in progress: report, go on
+                    self.stop_errors.append((sid, f"{type(exc).__name__}: {exc}"))
+        finally:
+            st.subscription.close()
 
     def close(self) -> None:
         self.remove(streams=list(self.live))
@@ -275,3 +323,14 @@ class Fleet:
         """:meth:`Ledger.window` of these streams (default: all, past and present)."""
         chosen = self.streams() if streams is None else streams
         return self.ledger.window(t0, t1, [st.record for st in chosen])
+
+
+def failover_fleet(client: Any, clip: Clip, names: Sequence[str], *, preset: str, fps: float,
+                   frames: int) -> Fleet:
+    """The streams failover runs watch: one per name (the names decide which instance owns
+    which stream, so a run that keeps them is comparable), each with one session
+    ``s-<stream>``, all publishing ``frames`` frames of the clip at ``fps`` at the same
+    instants."""
+    fleet = Fleet(client, [clip], preset=preset, pacing=Pacing.fixed_rate(fps, aligned=True))
+    fleet.add(names=names, frames=frames, session_id=lambda stream, _: f"s-{stream}")
+    return fleet

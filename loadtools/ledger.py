@@ -10,6 +10,7 @@ from __future__ import annotations
 import itertools
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -59,8 +60,10 @@ class Received:
 
 @dataclass
 class StreamRecord:
-    """What one stream sent and received. A stream id used again later (a drone that comes
-    back) gets a new record, so that its frame numbering starts over cleanly."""
+    """What one stream sent and what its own sessions received. A stream id used again later
+    (a drone that comes back) gets a new record, so that its frame numbering starts over
+    cleanly; results of sessions this record does not own (another station tracking the same
+    stream) are counted in ``foreign`` and otherwise ignored."""
 
     name: str
     cond: threading.Condition
@@ -68,28 +71,45 @@ class StreamRecord:
     #: (frame seq, monotonic time sent)
     sent: list[tuple[int, float]] = field(default_factory=list)
     received: list[Received] = field(default_factory=list)
+    foreign: int = 0
     _answers: dict[int, int] = field(default_factory=dict)
+
+    def add_session(self, session_id: str) -> None:
+        with self.cond:
+            self.sessions.append(session_id)
 
     def on_sent(self, seq: int) -> None:
         with self.cond:
             self.sent.append((seq, time.monotonic()))
 
-    def on_result(self, result: Any) -> None:
-        """The callback for the client's result subscription."""
+    def on_result(self, result: Any) -> Received | None:
+        """The callback for the client's result subscription: the result as recorded (None
+        if it belongs to a session of someone else)."""
         now, wall = time.monotonic(), time.time_ns()
         with self.cond:
-            self.received.append(Received(result, now, (wall - result.capture_ts_ns) / 1e9))
+            if result.session_id not in self.sessions:
+                self.foreign += 1
+                return None
+            got = Received(result, now, (wall - result.capture_ts_ns) / 1e9)
+            self.received.append(got)
             self._answers[result.frame_seq] = self._answers.get(result.frame_seq, 0) + 1
             self.cond.notify_all()
+        return got
 
     def answered(self, seq: int) -> int:
         """How many results frame ``seq`` got so far."""
         with self.cond:
             return self._answers.get(seq, 0)
 
-    def wait_answered(self, seq: int, count: int, timeout: float) -> bool:
+    def wait(self, predicate: Callable[[], bool], timeout: float) -> bool:
+        """Wait until ``predicate()`` (evaluated under the record's lock) holds, at most
+        ``timeout`` s; whether it does. :meth:`wake` makes it look again."""
         with self.cond:
-            return self.cond.wait_for(lambda: self._answers.get(seq, 0) >= count, timeout)
+            return self.cond.wait_for(predicate, max(timeout, 0.0))
+
+    def wake(self) -> None:
+        with self.cond:
+            self.cond.notify_all()
 
     def results_of(self, session_id: str) -> list[Received]:
         with self.cond:
@@ -118,6 +138,42 @@ class StreamRecord:
         if last is None:
             return first.frame_seq, 0.0
         return first.frame_seq - last.frame_seq - 1, 1e3 * (first.t - last.t)
+
+    def accounting(self) -> dict[str, int]:
+        """Every frame of every session of this stream accounted for.
+
+        Per session, each frame up to the highest one answered either has a result or is
+        counted in a later result's ``dropped`` (frames before the session's first result
+        are counted here as skipped at the start); ``unaccounted`` is what neither explains.
+        Frames sent after the highest answered one were still queued when the stream stopped
+        (the tail); a session that never answered has every frame in its tail. Results must
+        arrive in frame order (``out_of_order`` counts those that did not)."""
+        out = dict.fromkeys(ACCOUNTS, 0)
+        with self.cond:
+            n_sent = len(self.sent)
+            sessions = list(self.sessions)
+            received = list(self.received)
+        for sid in sessions:
+            rows = [r for r in received if r.session_id == sid and r.status != "stopped"]
+            out["sessions"] += 1
+            if not rows:
+                out["tail"] += n_sent
+                continue
+            seqs = [r.frame_seq for r in rows]
+            out["out_of_order"] += sum(1 for a, b in itertools.pairwise(seqs) if b <= a)
+            first, highest = min(seqs), max(seqs)
+            dropped = sum(r.dropped for r in rows) - min(rows, key=lambda r: r.frame_seq).dropped
+            out["results"] += len(rows)
+            out["dropped"] += dropped
+            out["skipped_at_start"] += first
+            out["unaccounted"] += abs(highest + 1 - first - dropped - len(rows))
+            out["tail"] += max(n_sent - (highest + 1), 0)
+        return out
+
+
+#: the keys of an accounting, in report order
+ACCOUNTS = ("sessions", "results", "dropped", "skipped_at_start", "unaccounted", "out_of_order",
+            "tail")
 
 
 class Ledger:
@@ -155,17 +211,19 @@ class Ledger:
         return found
 
     def after_move(self, moved: list[str], others: list[str], t0: float, timeout: float,
-                   settle_s: float = 1.5) -> dict[str, Any]:
+                   settle_s: float = 1.5, gaps_from: float | None = None) -> dict[str, Any]:
         """After an event at ``t0`` that moves the streams ``moved`` to another instance (a
         kill, a freeze, a join): how many resumed, how fast, what each lost at its handover,
-        and the gaps on the other streams from a second before the event to ``settle_s`` after
-        the last resumption."""
+        and the gaps on the other streams from ``gaps_from`` (default ``t0``; a second earlier
+        for an instance that died, whose last frames may already have been lost) to
+        ``settle_s`` after the last resumption."""
         found = self.first_resumed(moved, t0, timeout=timeout)
         time.sleep(settle_s)
+        start = t0 if gaps_from is None else gaps_from
         return {"streams_moved": len(moved), "resumed": len(found),
                 "failover_ms": [1e3 * (found[n] - t0) for n in moved if n in found],
                 "handovers": [self[n].handover(t0) for n in moved if n in found],
-                "other_streams_gaps": sum(self[n].gaps(t0 - 1.0, time.monotonic())
+                "other_streams_gaps": sum(self[n].gaps(start, time.monotonic())
                                           for n in others)}
 
     def window(self, t0: float, t1: float, records: list[StreamRecord] | None = None
@@ -197,29 +255,9 @@ class Ledger:
                     if rec.sent and rec.sent[0][1] <= t1 and rec.sent[-1][1] >= t0]
 
     def accounting(self) -> dict[str, int]:
-        """Every frame of every session accounted for, over the whole run.
-
-        Per session, its results' frame numbers must increase, and each frame up to the last
-        one answered either has a result or is counted in a later result's ``dropped`` (frames
-        before the session's first result are counted here as skipped at the start). Frames
-        sent after the last answered one were still queued when the stream stopped (the
-        tail)."""
-        out = {"sessions": 0, "results": 0, "dropped": 0, "skipped_at_start": 0,
-               "unaccounted": 0, "out_of_order": 0, "tail": 0}
+        """:meth:`StreamRecord.accounting` summed over every stream of the run."""
+        out = dict.fromkeys(ACCOUNTS, 0)
         for rec in self.records:
-            n_sent = len(rec.sent)
-            for sid in rec.sessions:
-                rows = [r for r in rec.results_of(sid) if r.status != "stopped"]
-                out["sessions"] += 1
-                if not rows:
-                    out["tail"] += n_sent
-                    continue
-                seqs = [r.frame_seq for r in rows]
-                out["out_of_order"] += sum(1 for a, b in itertools.pairwise(seqs) if b <= a)
-                dropped = sum(r.dropped for r in rows[1:])
-                out["results"] += len(rows)
-                out["dropped"] += dropped
-                out["skipped_at_start"] += seqs[0]
-                out["unaccounted"] += abs(seqs[-1] + 1 - seqs[0] - dropped - len(rows))
-                out["tail"] += n_sent - (seqs[-1] + 1)
+            for key, n in rec.accounting().items():
+                out[key] += n
         return out

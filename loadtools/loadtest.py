@@ -18,8 +18,10 @@ what was observed.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
+import shlex
 import sys
 import time
 from dataclasses import asdict, dataclass, field
@@ -30,11 +32,11 @@ import numpy as np
 
 from arcf.eval import load_dataset, score_sequence
 from service.decoding import decode_compressed
-from service.scrape import scrape
+from service.scrape import delta, scrape
 from service.settings import ZENOH_SHORT_FLAGS
 
 from .driver import Clip, Fleet, Pacing
-from .ledger import meets_capacity, percentiles
+from .ledger import Received, meets_capacity, percentiles
 from .procs import ServiceProcess
 from .system import CpuMeter
 
@@ -72,6 +74,27 @@ def time_breakdown(delta: dict[str, float]) -> dict[str, float]:
             "end_to_end_ms": e2e, "other_ms": e2e - decode - track * per_frame}
 
 
+def _held_boxes(results: list[Received], n: int) -> np.ndarray:
+    """One box per frame of the first ``n``, from a session's results: a frame without a
+    result (dropped by the service) keeps the box before it, as a display would, and frames
+    before the first result have none (scored as a miss)."""
+    boxes = np.full((n, 4), np.nan)
+    for r in results:
+        if r.frame_seq < n:
+            boxes[r.frame_seq] = r.result.box
+    last = None
+    for i in range(n):
+        if np.isnan(boxes[i, 0]) and last is not None:
+            boxes[i] = last
+        last = boxes[i] if not np.isnan(boxes[i, 0]) else last
+    return np.nan_to_num(boxes, nan=0.0)
+
+
+def _first_pass_truth(clip: Clip, n: int) -> np.ndarray:
+    assert clip.groundtruth is not None, "a scored clip plays forward"
+    return clip.groundtruth[:n]
+
+
 def _offline(preset: str, clip: Clip, n: int) -> tuple[float, float]:
     """The library alone, in this process, on the clip's first ``n`` JPEG frames: (P@20, AUC)."""
 
@@ -79,8 +102,7 @@ def _offline(preset: str, clip: Clip, n: int) -> tuple[float, float]:
 
     frames = (decode_compressed(d) for d in clip.frames[:n])  # as a worker decodes them
     run = arcf.run_sequence(arcf.create_tracker(preset), frames, clip.box)
-    assert clip.groundtruth is not None
-    sc = score_sequence(run.boxes, clip.groundtruth[:n])
+    sc = score_sequence(run.boxes, _first_pass_truth(clip, n))
     return sc.precision20, sc.auc
 
 
@@ -155,6 +177,7 @@ def run_load(
     reference_seconds: float = 10.0,
     reference_processes: int | None = None,
     cache: dict[Any, Any] | None = None,
+    client: Any = None,
 ) -> dict[str, Any]:
     """Run one load level and return its report (a JSON-able dict).
 
@@ -174,10 +197,9 @@ def run_load(
     The library's own throughput on the same frames is measured for ``reference_seconds`` (0
     skips it), half before the load and half after: one process, and ``reference_processes``
     side by side (default: one per CPU, like the service's workers). ``cache`` keeps the offline
-    accuracy runs across the levels of a sweep.
+    accuracy runs across the levels of a sweep. ``client`` replaces the client made from
+    ``connect`` and ``prefix`` (a test's stand-in for the service, for one).
     """
-    from service.client import TrackingClient
-
     clips = []
     for seq in sequences[: min(streams, len(sequences))]:
         n = min(len(seq), max_frames) if max_frames else len(seq)
@@ -205,18 +227,23 @@ def run_load(
 
     before = scrape(metrics_url)
     pacing = Pacing(fps=fps, in_flight=in_flight, aligned=aligned)
-    with TrackingClient(connect=connect, prefix=prefix) as client:
-        fleet = Fleet(client, clips, preset=preset, pacing=pacing, prefix="load")
-        # stream k's frame count: its clip, or (looping) up to max_frames or the duration
-        count = [(max_frames or None) if loop else len(clips[k % len(clips)])
-                 for k in range(streams)]
-        start = time.monotonic()
-        stop_at = start + duration + stagger * streams
-        cpu = CpuMeter(service_pid)
+    with contextlib.ExitStack() as stack:
+        if client is None:
+            from service.client import TrackingClient
+
+            client = stack.enter_context(TrackingClient(connect=connect, prefix=prefix))
+        fleet = stack.enter_context(Fleet(client, clips, preset=preset, pacing=pacing,
+                                          prefix="load"))
+        # every session first; then all streams start together, ``stagger`` apart
         for k in range(streams):
-            fleet.add(1, sessions=sessions_per_stream, frames=count[k], reinit_on_wrap=loop,
-                      delay=k * stagger)
+            # stream k's frame count: its clip, or (looping) up to max_frames or the duration
+            count = (max_frames or None) if loop else len(clips[k % len(clips)])
+            fleet.add(1, sessions=sessions_per_stream, frames=count, reinit_on_wrap=loop,
+                      delay=k * stagger, hold=True)
         started = list(fleet.live)
+        cpu = CpuMeter(service_pid)
+        start = fleet.release()
+        stop_at = start + duration + stagger * streams
         while any(st.publishing() for st in started) and time.monotonic() < stop_at:
             time.sleep(min(1.0, max(0.0, stop_at - time.monotonic())))
             if progress:
@@ -230,9 +257,8 @@ def run_load(
         fleet.settle(timeout=10)  # the tail: every session answers its stream's last frame
         elapsed = time.monotonic() - start
         cpu_use = cpu.read()
-        fleet.close()
-        if progress:
-            print(file=sys.stderr)
+    if progress:
+        print(file=sys.stderr)
     time.sleep(0.5)
     after = scrape(metrics_url)
     if reference_seconds > 0:
@@ -247,32 +273,20 @@ def run_load(
         all_lat += lat
         rep.latency_ms = percentiles(lat)
         rep.result_rate = len(rs) / elapsed if elapsed > 0 else 0.0
+        counts = st.record.accounting()
+        rep.dropped_by_service = counts["skipped_at_start"] + counts["dropped"]
+        # frames that got neither a result nor a place in a later result's ``dropped``
+        rep.missing = st.sent * len(st.sessions) - rep.results - rep.dropped_by_service
         first_pass = min(st.sent, len(st.clip))
-        dropped = missing = 0
         p20, aucs = [], []
         for sid in st.sessions:
-            session_results = sorted((r for r in rs if r.session_id == sid),
-                                     key=lambda r: r.frame_seq)
-            if not session_results:  # a session with no result is missing every frame
-                missing += st.sent
+            session_results = st.record.results_of(sid)
+            if not session_results:
                 continue
-            d = session_results[0].frame_seq + sum(r.dropped for r in session_results[1:])
-            dropped += d
-            missing += st.sent - len(session_results) - d
-            boxes = np.full((first_pass, 4), np.nan)
-            for r in session_results:
-                if r.frame_seq < first_pass:
-                    boxes[r.frame_seq] = r.result.box
-            last = None
-            for i in range(first_pass):  # a dropped frame keeps the previous box
-                if np.isnan(boxes[i, 0]) and last is not None:
-                    boxes[i] = last
-                last = boxes[i] if not np.isnan(boxes[i, 0]) else last
-            assert st.clip.groundtruth is not None
-            sc = score_sequence(np.nan_to_num(boxes, nan=0.0), st.clip.groundtruth[:first_pass])
+            sc = score_sequence(_held_boxes(session_results, first_pass),
+                                _first_pass_truth(st.clip, first_pass))
             p20.append(sc.precision20)
             aucs.append(sc.auc)
-        rep.dropped_by_service, rep.missing = dropped, missing
         rep.precision20 = float(np.mean(p20)) if p20 else float("nan")
         rep.auc = float(np.mean(aucs)) if aucs else float("nan")
         if offline and first_pass:
@@ -284,15 +298,14 @@ def run_load(
 
     total_sent = sum(r.frames_sent for r in reports)
     total_results = sum(r.results for r in reports)
-    metrics_delta = {k: after.get(k, 0.0) - before.get(k, 0.0) for k in after}
+    metrics_delta = delta(before, after)
     result_rate = total_results / elapsed if elapsed > 0 else 0.0
-    # throughput in the steady state: every stream started (plus a second), none finished yet
-    t_a = start + stagger * (streams - 1) + 1.0
-    t_b = min(st.record.sent[-1][1] for st in started if st.sent) if any(
-        st.sent for st in started) else 0.0
+    # throughput in the steady state: every stream sending (plus a second), none finished yet
+    sending = [st.record.sent for st in started if st.sent]
+    t_a = max(sent[0][1] for sent in sending) + 1.0 if sending else 0.0
+    t_b = min(sent[-1][1] for sent in sending) if sending else 0.0
     if t_b - t_a >= 2.0:
-        in_window = sum(1 for st in started for r in st.record.received if t_a <= r.t <= t_b)
-        processed_rate = in_window / sessions_per_stream / (t_b - t_a)
+        processed_rate = fleet.ledger.window(t_a, t_b)["processed_fps"]
     else:
         processed_rate = result_rate / sessions_per_stream
     cpus = cpu_use["cpus"]
@@ -408,6 +421,10 @@ def main(argv: list[str] | None = None) -> int:
                     metavar="ENDPOINT", help="the service's Zenoh endpoint(s) (repeatable)")
     ap.add_argument("--spawn-service", action="store_true",
                     help="start an arcf-service on a free loopback port for the run")
+    ap.add_argument("--service-args", default="", metavar="ARGS",
+                    help="more arguments for the spawned service, e.g. "
+                         "--service-args='--max-stream-fps 10000' for closed loops that outrun "
+                         "the per-stream rate limit")
     ap.add_argument("--metrics-url", help="the service's /metrics URL (scraped before/after)")
     ap.add_argument("--service-pid", type=int,
                     help="pid of the service's main process, to measure its CPU use")
@@ -458,7 +475,8 @@ def main(argv: list[str] | None = None) -> int:
     connect, metrics_url = args.connect or ["tcp/127.0.0.1:7447"], args.metrics_url
     service_pid = args.service_pid
     if args.spawn_service:
-        proc = ServiceProcess(workers=os.cpu_count() or 1, quiet=False)
+        proc = ServiceProcess(*shlex.split(args.service_args), workers=os.cpu_count() or 1,
+                              quiet=False)
         connect, metrics_url, service_pid = [proc.endpoint], proc.metrics_url, proc.pid
         print(f"arcf-service started on {proc.endpoint}", file=sys.stderr)
     reports: list[dict[str, Any]] = []

@@ -9,12 +9,14 @@ from __future__ import annotations
 
 import contextlib
 import os
+import select
 import signal
 import socket
 import subprocess
 import sys
 import tempfile
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 from service.scrape import scrape
@@ -42,10 +44,10 @@ def worker_pids(pid: int) -> set[int]:
 
 class _Program:
     """A console program of this package started as ``python -m <module>``, ready when its
-    first stdout line says so."""
+    first stdout line says so (within ``start_s``; else it is killed)."""
 
     def __init__(self, module: str, args: list[str], *, quiet: bool,
-                 env: Mapping[str, str] | None) -> None:
+                 env: Mapping[str, str] | None, start_s: float = 180.0) -> None:
         # the log goes to a file, not a pipe: nobody reads a pipe during a long run, and a
         # full pipe would block the program's logging threads (and with them the program)
         self._log = tempfile.TemporaryFile(mode="w+") if quiet else None  # noqa: SIM115
@@ -53,16 +55,20 @@ class _Program:
                                      stdout=subprocess.PIPE, stderr=self._log, text=True,
                                      env={**os.environ, **(env or {})})
         assert self.proc.stdout is not None
-        self.ready_line = self.proc.stdout.readline().strip()
+        ready, _, _ = select.select([self.proc.stdout], [], [], start_s)
+        self.ready_line = self.proc.stdout.readline().strip() if ready else ""
         if "ready" not in self.ready_line:
             try:  # it exits by itself when it knows why it cannot start
-                code = self.proc.wait(timeout=10)
+                code = self.proc.wait(timeout=10 if ready else 0.1)
             except subprocess.TimeoutExpired:
                 self.proc.kill()
                 code = self.proc.wait(timeout=10)
+            log = self.log()
             self.proc.stdout.close()
-            raise RuntimeError(f"{module} did not start (exit code {code}): "
-                               f"{self.ready_line!r} {self.log()}")
+            if self._log is not None:
+                self._log.close()
+            said = self.ready_line or f"no ready line within {start_s:g} s"
+            raise RuntimeError(f"{module} did not start (exit code {code}): {said!r} {log}")
 
     @property
     def pid(self) -> int:
@@ -76,11 +82,17 @@ class _Program:
         self._log.seek(0)
         return self._log.read()
 
-    def stop(self) -> int:
-        """SIGTERM, then its exit code (a clean shutdown is 0)."""
+    def stop(self, timeout: float = 30.0) -> int:
+        """SIGTERM, then its exit code (a clean shutdown is 0); SIGKILL (and SIGCONT, for a
+        frozen one) if it has not exited within ``timeout``."""
         if self.proc.poll() is None:
             self.proc.send_signal(signal.SIGTERM)
-        code = self.proc.wait(timeout=30)
+        try:
+            code = self.proc.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.send_signal(signal.SIGCONT)
+            code = self.proc.wait(timeout=10)
         if self.proc.stdout is not None:
             self.proc.stdout.close()
         if self._log is not None:
@@ -132,3 +144,22 @@ class RouterProcess(_Program):
 
     def __enter__(self) -> RouterProcess:
         return self
+
+
+def start_instances(ids: Sequence[str], router: str, *extra: str, workers: int = 1,
+                    quiet: bool = True) -> dict[str, ServiceProcess]:
+    """Service instances ``ids`` (client mode, joined through the router at ``router``),
+    started side by side; if one fails to start, the others are stopped and the error raised."""
+    def start(instance: str) -> ServiceProcess:
+        return ServiceProcess("--instance-id", instance, *extra, connect=router,
+                              workers=workers, quiet=quiet)
+
+    with ThreadPoolExecutor(max(len(ids), 1)) as pool:
+        futures = {i: pool.submit(start, i) for i in ids}
+    started = {i: f.result() for i, f in futures.items() if f.exception() is None}
+    failed = [f.exception() for f in futures.values() if f.exception() is not None]
+    if failed:
+        for svc in started.values():
+            svc.stop()
+        raise failed[0]  # type: ignore[misc]
+    return started

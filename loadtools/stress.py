@@ -28,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+from service.scrape import delta as metrics_delta
 from service.scrape import scrape
 
 from .driver import Clip, Fleet, Pacing, SimulatedStream
@@ -43,17 +44,12 @@ def _stress_fleet(client: Any, sequences: list[Any], preset: str, fps: float,
     return Fleet(client, clips, preset=preset, pacing=Pacing.fixed_rate(fps), prefix="stress")
 
 
-def _metrics_delta(before: dict[str, float], metrics_url: str | None) -> dict[str, float]:
-    """How much each of the service's counters moved since ``before`` (histogram buckets
-    left out: their counts and sums are kept)."""
-    after = scrape(metrics_url)
-    return {k: after.get(k, 0.0) - before.get(k, 0.0) for k in after
-            if not k.endswith(("_bucket", "_created"))}
-
-
 # --------------------------------------------------------------------------- overload
 def passes(stats: dict[str, Any], p99_ms: float) -> bool:
-    """``meets_capacity`` of a fleet window's statistics."""
+    """``meets_capacity`` of a fleet window's statistics. Inside a window of a running fleet a
+    frame still in flight cannot be told from a lost one, so what is lost here is what the
+    service itself reported dropped (``run_load`` adds the frames never answered, which it
+    can count once every stream has stopped)."""
     return meets_capacity(stats["results"], stats["dropped"], stats["latency_ms"]["p99"], p99_ms)
 
 
@@ -197,7 +193,7 @@ def run_overload(client: Any, sequences: list[Any], *, service_pid: int,
         marks["end"] = time.monotonic()
         fleet.close()
         time.sleep(0.5)
-    delta = _metrics_delta(before, metrics_url)
+    delta = metrics_delta(before, scrape(metrics_url))
 
     def phase(name: str, start: str, end: str, streams: list[SimulatedStream] | None = None
               ) -> dict[str, Any]:
@@ -288,7 +284,7 @@ def run_soak(client: Any, sequences: list[Any], *, service_pid: int,
                     f"anonymous memory {m[1]:.1f} MB")
         fleet.close()
         time.sleep(1.0)
-    delta = _metrics_delta(before, metrics_url)
+    delta = metrics_delta(before, scrape(metrics_url))
     # warm: the first window after warm-up; end: the same length at the end of the run
     span = min(max(60.0, 10 * sample_s), (duration_s - warmup_s) / 3)
     warm = memory.summary(t_start + warmup_s, t_start + warmup_s + span)

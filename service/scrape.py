@@ -38,3 +38,10 @@ def totals(text: str) -> dict[str, float]:
 def scrape(url: str | None, timeout: float = 5.0) -> dict[str, float]:
     """``totals`` of the endpoint at ``url``; ``{}`` when there is no URL."""
     return totals(fetch(url, timeout)) if url else {}
+
+
+def delta(before: dict[str, float], after: dict[str, float]) -> dict[str, float]:
+    """How much each counter moved between two :func:`scrape` readings (histogram buckets and
+    creation times left out; their counts and sums are kept)."""
+    return {k: after.get(k, 0.0) - before.get(k, 0.0) for k in after
+            if not k.endswith(("_bucket", "_created"))}

@@ -24,12 +24,8 @@ import shutil
 import subprocess
 import sys
 import time
-import urllib.parse
-import urllib.request
 from collections.abc import Iterator
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pytest
@@ -39,7 +35,8 @@ pytest.importorskip("zenoh")
 import arcf
 from arcf.data import data_root
 from arcf.eval import load_dataset
-from loadtools.driver import Clip, Fleet, Pacing
+from loadtools.compose import INSTANCES, ComposeStack, stack_env
+from loadtools.driver import Clip, Fleet, Pacing, failover_fleet
 from loadtools.ledger import StreamRecord
 from loadtools.procs import free_port
 from service.client import TrackingClient
@@ -47,7 +44,6 @@ from service.cluster import owner
 
 ROOT = Path(__file__).resolve().parents[2]
 DEPLOY = ROOT / "deploy"
-INSTANCES = ("arcf-1", "arcf-2")
 
 
 def _engine_problem() -> str | None:
@@ -72,62 +68,11 @@ pytestmark = [pytest.mark.docker, pytest.mark.integration, pytest.mark.skipif(_P
                                                      reason=_PROBLEM or "")]
 
 
-@dataclass
-class Stack:
-    project: str
-    env: dict[str, str]
+class Stack(ComposeStack):
+    """The stack under test, with its loopback ports and how long it took to build."""
+
     router_port: int
-    prometheus_port: int
-    build_s: float
-
-    def compose(self, *args: str, timeout: float = 600) -> subprocess.CompletedProcess[str]:
-        cmd = ["docker-compose", "-f", str(DEPLOY / "compose.yaml"),
-               "-f", str(DEPLOY / "compose.local.yaml"), "-p", self.project, *args]
-        out = subprocess.run(cmd, env=self.env, capture_output=True, text=True, timeout=timeout)
-        assert out.returncode == 0, f"{' '.join(args)}: {out.stdout[-3000:]}{out.stderr[-3000:]}"
-        return out
-
-    def container(self, service: str) -> str:
-        return self.compose("ps", "-q", service).stdout.strip()
-
-    def inspect(self, service: str) -> dict[str, Any]:
-        cid = self.container(service)
-        out = subprocess.run(["docker", "inspect", cid], capture_output=True, text=True,
-                             check=True)
-        return json.loads(out.stdout)[0]
-
-    def health(self, service: str) -> str:
-        return self.inspect(service)["State"].get("Health", {}).get("Status", "none")
-
-    def wait_healthy(self, services: tuple[str, ...], timeout: float = 120) -> None:
-        deadline = time.monotonic() + timeout
-        status = {s: "" for s in services}
-        while time.monotonic() < deadline:
-            status = {s: self.health(s) for s in services}
-            if all(v == "healthy" for v in status.values()):
-                return
-            time.sleep(1.0)
-        raise AssertionError(f"not healthy within {timeout:.0f} s: {status}")
-
-    def prometheus(self, path: str, **query: str) -> Any:
-        url = f"http://127.0.0.1:{self.prometheus_port}{path}"
-        if query:
-            url += "?" + urllib.parse.urlencode(query)
-        with urllib.request.urlopen(url, timeout=5) as response:
-            body = json.load(response)
-        assert body["status"] == "success", body
-        return body["data"]
-
-    def leftovers(self) -> dict[str, list[str]]:
-        label = f"label=com.docker.compose.project={self.project}"
-        found = {}
-        for kind, cmd in (("containers", ["docker", "ps", "-aq"]),
-                          ("networks", ["docker", "network", "ls", "-q"]),
-                          ("volumes", ["docker", "volume", "ls", "-q"])):
-            out = subprocess.run([*cmd, "--filter", label], capture_output=True, text=True,
-                                 check=True)
-            found[kind] = out.stdout.split()
-        return found
+    build_s: float = 0.0
 
 
 @pytest.fixture(scope="module")
@@ -136,17 +81,16 @@ def stack() -> Iterator[Stack]:
     prep = subprocess.run([sys.executable, str(DEPLOY / "offline.py")], capture_output=True,
                           text=True, timeout=1200)
     assert prep.returncode == 0, prep.stdout[-3000:] + prep.stderr[-3000:]
-    env = dict(os.environ)
     router_port, prometheus_port = free_port(), free_port()
-    env.update(ARCF_PUBLISH_ADDRESS="127.0.0.1", ARCF_ROUTER_PORT=str(router_port),
-               ARCF_PROMETHEUS_PORT=str(prometheus_port), ARCF_DATA=str(data_root()),
-               ARCF_WORKERS_PER_INSTANCE="1", ARCF_VERSION="test")
-    s = Stack(f"arcftest{os.getpid()}", env, router_port, prometheus_port, 0.0)
+    env = stack_env(os.environ, router_port=router_port, prometheus_port=prometheus_port,
+                    data=data_root(), version="test")
+    s = Stack(f"arcftest{os.getpid()}", env, DEPLOY, prometheus_port)
+    s.router_port = router_port
     t0 = time.monotonic()
-    s.compose("build", timeout=1800)
+    s("build", timeout=1800)
     s.build_s = time.monotonic() - t0
     try:
-        s.compose("up", "-d")
+        s("up", "-d")
         # every test starts from a stack that answers: healthy containers, and a control plane
         # reachable through the router (so each test also runs on its own, e.g. with -k)
         s.wait_healthy(("arcf-1", "arcf-2", "prometheus"))
@@ -161,9 +105,7 @@ def stack() -> Iterator[Stack]:
                         raise
         yield s
     finally:
-        subprocess.run(["docker-compose", "-f", str(DEPLOY / "compose.yaml"), "-f",
-                        str(DEPLOY / "compose.local.yaml"), "-p", s.project, "down", "-v",
-                        "--remove-orphans"], env=env, capture_output=True, timeout=300)
+        s.down()
 
 
 def test_instances_healthy_nonroot_readonly(stack: Stack) -> None:
@@ -255,11 +197,9 @@ def test_docker_kill_moves_streams_and_the_instance_comes_back(stack: Stack) -> 
     others = [n for n in names if n not in victim]
     seq = load_dataset("uav123_10fps", sequences=["truck4_1"])[0]
     with TrackingClient(connect=[f"tcp/127.0.0.1:{stack.router_port}"]) as client, \
-            Fleet(client, [Clip.of(seq)], preset="bacf",
-                  pacing=Pacing.fixed_rate(5, aligned=True)) as fleet:
+            failover_fleet(client, Clip.of(seq), names, preset="bacf", fps=5,
+                           frames=600) as fleet:  # bounded: 2 minutes at 5 fps
         ledger = fleet.ledger
-        # bounded: 2 minutes at 5 fps
-        fleet.add(names=names, frames=600, session_id=lambda stream, _: f"s-{stream}")
         time.sleep(4.0)
         assert all(ledger[n].received for n in names), "a stream without results before the kill"
 
@@ -282,7 +222,7 @@ def test_docker_kill_moves_streams_and_the_instance_comes_back(stack: Stack) -> 
         state = stack.inspect("arcf-2")["State"]
         t_back = time.monotonic()
         if not state["Running"]:
-            stack.compose("start", "arcf-2")
+            stack("start", "arcf-2")
         returned = ledger.first_resumed(victim, t_back, timeout=60)
         assert sorted(returned) == sorted(victim), "the restarted instance took nothing back"
         time.sleep(2.0)
@@ -296,5 +236,5 @@ def test_docker_kill_moves_streams_and_the_instance_comes_back(stack: Stack) -> 
 
 def test_compose_down_leaves_nothing(stack: Stack) -> None:
     assert all(stack.leftovers().values())  # the stack is there...
-    stack.compose("down", "-v", "--remove-orphans", timeout=300)
+    stack("down", "-v", "--remove-orphans", timeout=300)
     assert stack.leftovers() == {"containers": [], "networks": [], "volumes": []}

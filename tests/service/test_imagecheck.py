@@ -9,7 +9,6 @@ import cv2
 import numpy as np
 import pytest
 
-from loadtools.hostile import png_bomb
 from service.decoding import decode_image
 from service.imagecheck import image_size
 
@@ -41,7 +40,7 @@ def test_unreadable_headers_give_none(junk: bytes) -> None:
     assert image_size(junk) is None
 
 
-def test_a_decompression_bomb_is_refused_without_decoding() -> None:
+def test_a_decompression_bomb_is_refused_without_decoding(png_bomb) -> None:
     bomb = png_bomb(10000, 10000)  # 100 MB of pixels in a ~100 KB file
     assert len(bomb) < 200_000 and image_size(bomb) == (10000, 10000)
     t0 = time.perf_counter()

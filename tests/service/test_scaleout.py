@@ -10,7 +10,6 @@ from __future__ import annotations
 import os
 import signal
 import time
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
@@ -19,8 +18,8 @@ pytest.importorskip("zenoh")
 
 from arcf.data import data_root
 from arcf.eval import load_dataset
-from loadtools.driver import Clip, Fleet, Pacing
-from loadtools.procs import RouterProcess, ServiceProcess
+from loadtools.driver import Clip, failover_fleet
+from loadtools.procs import RouterProcess, ServiceProcess, start_instances
 from service.client import TrackingClient
 from service.cluster import owner
 
@@ -50,20 +49,17 @@ def test_instances_share_streams_fail_over_and_rebalance() -> None:
     streams = pick_streams()
     router = RouterProcess()
     extra = ("--lease-ms", str(int(LEASE_S * 1000)))
-    with ThreadPoolExecutor(3) as pool:
-        instances = dict(zip(IDS, pool.map(
-            lambda i: ServiceProcess("--instance-id", i, *extra, connect=router.endpoint,
-                                     workers=1), IDS), strict=True))
+    instances = start_instances(IDS, router.endpoint, *extra)
     client = TrackingClient(connect=[router.endpoint])
-    fleet = Fleet(client, [Clip.of(seq)], preset="bacf",
-                  pacing=Pacing.fixed_rate(FPS, aligned=True))
-    ledger = fleet.ledger
+    fleet = None
     newcomer = None
     try:
         status = client.status()
         assert sorted(status.instances) == IDS
         # bounded: 2 minutes at 5 fps
-        fleet.add(names=streams, frames=600, session_id=lambda stream, _: f"s-{stream}")
+        fleet = failover_fleet(client, Clip.of(seq), streams, preset="bacf", fps=FPS,
+                               frames=600)
+        ledger = fleet.ledger
         time.sleep(4.0)
 
         # 1. spread: every stream tracked, two sessions on each instance
@@ -131,7 +127,8 @@ def test_instances_share_streams_fail_over_and_rebalance() -> None:
             procs[frozen].proc.wait(timeout=10)
         print(f"failover {failover_s * 1e3:.0f} ms, hang detected in {hang_s:.1f} s")
     finally:
-        fleet.pause()
+        if fleet is not None:
+            fleet.pause()
         client.close()
         for svc in [*instances.values(), *([newcomer] if newcomer else [])]:
             if svc.proc.poll() is None:

@@ -363,10 +363,8 @@ def test_signals_stop_everything(sig) -> None:
             f"/proc/{pid}/status").read_text().lower()
 
 
-def test_limits_stale_frames_and_bombs_are_refused_counted_and_harmless(frames) -> None:
+def test_limits_stale_frames_and_bombs_are_refused_counted_and_harmless(frames, png_bomb) -> None:
     """Each refusal is a counted error with a clear code, and the sessions go on."""
-    from loadtools.hostile import png_bomb
-
 
     seq, data = frames
     keys = KeySpace()

@@ -1,13 +1,15 @@
-"""Payloads a hostile (or merely broken) ground station sends, for the tests and tools that
-check the service refuses them cleanly."""
+"""What the server's tests share: payloads a hostile (or merely broken) ground station sends."""
 
 from __future__ import annotations
 
 import struct
 import zlib
+from collections.abc import Callable
+
+import pytest
 
 
-def png_bomb(width: int, height: int) -> bytes:
+def _png_bomb(width: int, height: int) -> bytes:
     """A valid grayscale PNG of width x height zeros: tiny on the wire, huge decoded (a
     decompression bomb: 10000 x 10000 is 100 MB of pixels in about 100 KB)."""
 
@@ -21,3 +23,9 @@ def png_bomb(width: int, height: int) -> bytes:
     ihdr = struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0)
     return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", idat)
             + chunk(b"IEND", b""))
+
+
+@pytest.fixture
+def png_bomb() -> Callable[[int, int], bytes]:
+    """``png_bomb(width, height)``: a valid PNG of that many zero pixels, tiny on the wire."""
+    return _png_bomb
