@@ -23,6 +23,11 @@ class UnknownPresetError(ARCFError):
     """No preset of that name exists, or an override names an unknown parameter."""
 
 
+class InvalidParameterError(UnknownPresetError):
+    """An override of the wrong type or outside its declared range (``arcf.presets.TUNABLE``);
+    an :class:`UnknownPresetError`, as every refused parameter set has always been."""
+
+
 class NotInitializedError(RuntimeError):
     """``update`` was called before ``init``."""
 

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any, Literal
 
-from .errors import UnknownPresetError
+from .errors import InvalidParameterError, UnknownPresetError
 from .features.fhog import ArithmeticMode as FhogArithmetic
 
 AberranceMode = Literal["paper", "release"]
@@ -291,6 +291,95 @@ RELEASE_COMPATIBLE: Mapping[str, Any] = MappingProxyType(
 HOST_PARAMETERS = frozenset({"fhog_sse_table"})
 
 
+@dataclass(frozen=True)
+class Tunable:
+    """An override's declared type and supported range (inclusive bounds, or the allowed
+    values). The ranges span every setting of the paper, the release and their ablations with
+    room to experiment, and keep one frame's cost bounded (a service accepts no more): a
+    research run beyond them builds its :class:`TrackerParams` with ``dataclasses.replace``."""
+
+    kind: type
+    low: float | None = None
+    high: float | None = None
+    choices: tuple[str, ...] | None = None
+
+    def check(self, name: str, value: Any) -> None:
+        """Raise :class:`InvalidParameterError` naming the field and what it accepts."""
+        want = self.describe()
+        if self.kind is bool:
+            ok = isinstance(value, bool)
+        elif self.kind is int:
+            ok = isinstance(value, int) and not isinstance(value, bool)
+        elif self.kind is float:
+            ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(
+                value)
+        elif self.kind is tuple:  # a list of choices (the feature channels)
+            ok = (isinstance(value, (list, tuple)) and len(value) > 0
+                  and all(isinstance(v, str) and v in (self.choices or ()) for v in value)
+                  and len(set(value)) == len(value))
+        else:
+            ok = isinstance(value, str) and value in (self.choices or ())
+        if ok and self.low is not None and value < self.low:
+            ok = False
+        if ok and self.high is not None and value > self.high:
+            ok = False
+        if not ok:
+            raise InvalidParameterError(f"{name} must be {want}, got {value!r}")
+
+    def describe(self) -> str:
+        if self.kind is tuple:
+            return f"a list of distinct values of {list(self.choices or ())}"
+        if self.choices is not None:
+            return "one of " + ", ".join(repr(c) for c in self.choices)
+        name = {bool: "true or false", int: "an integer", float: "a finite number"}[self.kind]
+        if self.low is not None and self.high is not None:
+            return f"{name} in [{self.low:g}, {self.high:g}]"
+        if self.low is not None:
+            return f"{name} >= {self.low:g}"
+        return name
+
+
+#: Every parameter a caller may override, with its declared type and range (README's presets
+#: table). ``name`` is fixed by the preset; ``fhog_sse_table`` is a host path (library only).
+TUNABLE: Mapping[str, Tunable] = MappingProxyType({
+    "features": Tunable(tuple, choices=("gray", "fhog", "cn")),
+    "admm_iterations": Tunable(int, 1, 20),
+    "learning_rate": Tunable(float, 1e-4, 1.0),
+    "scale_mode": Tunable(str, choices=("search", "filter")),
+    "newton_iterations": Tunable(int, 0, 100),
+    "round_translation": Tunable(bool),
+    "sizing": Tunable(str, choices=("filter_max_area", "sample_area")),
+    "whole_pixel_boxes": Tunable(bool),
+    "gamma": Tunable(float, 0.0, 100.0),
+    "admm_lambda": Tunable(float, 0.0, 100.0),
+    "mu_init": Tunable(float, 1e-6, 1e6),
+    "mu_scale_step": Tunable(float, 1.0, 1e3),
+    "mu_max": Tunable(float, 1e-6, 1e9),
+    "aberrance": Tunable(str, choices=("paper", "release")),
+    "fhog_arithmetic": Tunable(str, choices=("exact", "release")),
+    "sampling": Tunable(str, choices=("release", "pyramid")),
+    "spectra": Tunable(str, choices=("release", "half")),
+    "training_sample": Tunable(str, choices=("extract", "shift")),
+    "normalize_features": Tunable(bool),
+    "cell_size": Tunable(int, 1, 8),
+    "search_area_scale": Tunable(float, 1.0, 16.0),
+    "output_sigma_factor": Tunable(float, 1e-3, 1.0),
+    "filter_max_area": Tunable(int, 16, 10_000),
+    "cell_selection_thresh": Tunable(float, 1e-3, 1.0),
+    "min_image_sample_size": Tunable(float, 16.0, 400.0**2),
+    "max_image_sample_size": Tunable(float, 16.0, 400.0**2),
+    "n_scales": Tunable(int, 1, 15),
+    "scale_step": Tunable(float, 1.0001, 1.5),
+    "scale_filter.n_scales": Tunable(int, 1, 65),
+    "scale_filter.scale_step": Tunable(float, 1.0001, 1.5),
+    "scale_filter.sigma_factor": Tunable(float, 1e-3, 10.0),
+    "scale_filter.learning_rate": Tunable(float, 1e-4, 1.0),
+    "scale_filter.regularizer": Tunable(float, 1e-8, 1.0),
+    "scale_filter.model_max_area": Tunable(int, 16, 4096),
+    "scale_filter.model_min_side": Tunable(int, 4, 64),
+})
+
+
 def make_params(preset: str | TrackerParams, **overrides: Any) -> TrackerParams:
     """A preset with keyword overrides, e.g. ``make_params("arcf-h", aberrance="release")``.
 
@@ -311,7 +400,10 @@ def make_params(preset: str | TrackerParams, **overrides: Any) -> TrackerParams:
         raise UnknownPresetError(
             f"unknown parameter(s) {unknown} for preset {base.name!r}; valid: {sorted(names)}"
         )
+    if "name" in overrides:
+        raise InvalidParameterError("name is the preset's; choose another preset instead")
     sf = overrides.get("scale_filter")
+    checked = {k: v for k, v in overrides.items() if k in TUNABLE}
     if isinstance(sf, dict):
         sf_names = {f.name for f in dataclasses.fields(ScaleFilterParams)}
         bad = sorted(set(sf) - sf_names)
@@ -319,9 +411,16 @@ def make_params(preset: str | TrackerParams, **overrides: Any) -> TrackerParams:
             raise UnknownPresetError(
                 f"unknown scale_filter parameter(s) {bad}; valid: {sorted(sf_names)}"
             )
-        overrides["scale_filter"] = dataclasses.replace(base.scale_filter, **sf)
+        checked |= {f"scale_filter.{k}": v for k, v in sf.items()}
     elif sf is not None and not isinstance(sf, ScaleFilterParams):
         raise UnknownPresetError("scale_filter must be a ScaleFilterParams or a dict of its fields")
+    for key, value in checked.items():
+        try:
+            TUNABLE[key].check(key, value)
+        except InvalidParameterError as exc:
+            raise InvalidParameterError(f"invalid parameters for {base.name!r}: {exc}") from None
+    if isinstance(sf, dict):
+        overrides["scale_filter"] = dataclasses.replace(base.scale_filter, **sf)
     if "features" in overrides:
         overrides["features"] = tuple(overrides["features"])
     return dataclasses.replace(base, **overrides) if overrides else base

@@ -117,6 +117,13 @@ class ErrorCode(str, Enum):
     NO_SESSION = "no_session"
     #: A frame whose ``seq`` is not above the stream's last one (duplicate or out of order).
     STALE_FRAME = "stale_frame"
+    #: A frame whose ``seq`` is more than ``max_seq_gap`` ahead of the stream's last one.
+    SEQUENCE_JUMP = "sequence_jump"
+    #: Not a refusal: the stream's numbering restarted (``resync_frames`` frames in a row
+    #: agreed on it); the frames follow the new numbering from here.
+    SEQUENCE_RESTARTED = "sequence_restarted"
+    #: A frame put on a key expression with wildcards, or on another stream's key.
+    INVALID_KEY = "invalid_key"
     #: A stream sending more frames per second than ``max_stream_fps``.
     RATE_LIMITED = "rate_limited"
     #: An image whose header declares more pixels than ``max_pixels`` (decompression bomb).
@@ -186,8 +193,10 @@ def _strict_number(value: Any) -> Any:
 
 #: Any float, NaN and infinities included (results report NaN when a value does not exist).
 AnyFloat = Annotated[float, BeforeValidator(_strict_number), Field(strict=True)]
+#: (The constraint before the validator: pydantic then exports it as JSON Schema's
+#: ``minimum``; the other order leaks its own ``ge`` into the schema.)
 NonNegFiniteFloat = Annotated[
-    float, BeforeValidator(_strict_number), Field(strict=True, ge=0, allow_inf_nan=False)
+    float, Field(strict=True, ge=0, allow_inf_nan=False), BeforeValidator(_strict_number)
 ]
 
 

@@ -253,16 +253,21 @@ class ControlPlane:
             if not self._mine("payload:" + hashlib.blake2b(payload, digest_size=8).hexdigest()):
                 return None
             metrics.CONTROL.labels(type="invalid", outcome=exc.code.value).inc()
+            metrics.ERRORS.labels(kind=exc.code.value).inc()
             return encode(ErrorMessage(code=exc.code.value, message=str(exc)))
-        kind = type(request).__name__
+        kind = request.type  # the wire name: start, reinit, stop, status_request
         if not self._mine(self._responder_key(request)):
             return None
         try:
             with self.op_lock:  # serialised with rebalancing (see __init__)
                 reply = self._dispatch(request)
-        except _Refused as exc:
-
+        except Exception as exc:  # a fault of ours: still one reply, counted, logged
+            if not isinstance(exc, _Refused):
+                log.exception("control: %s request failed", kind)
+                exc = _Refused(ErrorCode.INTERNAL, f"the service failed on this request "
+                               f"({type(exc).__name__}); its log says more")
             metrics.CONTROL.labels(type=kind, outcome=exc.code.value).inc()
+            metrics.ERRORS.labels(kind=exc.code.value).inc()
             return encode(ErrorMessage(code=exc.code, message=exc.message,
                                        request_id=request.request_id,
                                        stream_id=getattr(request, "stream_id", None),
@@ -306,7 +311,7 @@ class ControlPlane:
         if host_only:
             raise _Refused(ErrorCode.INVALID_PARAMETER, f"{', '.join(host_only)} names a file "
                            "on the service's host; a request cannot set it")
-        try:
+        try:  # type and range of every override (arcf.presets.TUNABLE), before any worker
             make_params(req.preset, **dict(req.overrides))
         except ARCFError as exc:
             raise _Refused(ErrorCode.INVALID_PARAMETER, str(exc)) from exc

@@ -61,6 +61,14 @@ class ServiceSettings:
     max_stream_fps: float = field(default=60.0, metadata=_about(
         "most frames/s accepted from one stream (sustained, one second of burst); the excess "
         "is refused and counted, so one flooding station cannot starve the others"))
+    max_seq_gap: int = field(default=900, metadata=_about(
+        "largest forward jump of a stream's frame numbers taken as lost frames (900: 30 s at "
+        "30 fps); a frame further ahead is refused (sequence_jump) unless resync_frames "
+        "frames in a row confirm the new numbering"))
+    resync_frames: int = field(default=3, metadata=_about(
+        "frames in a row, each refused as stale or a jump but following one another, after "
+        "which a stream follows their numbering (a restarted station): no single frame can "
+        "take a stream's numbering over"))
     metrics_host: str = field(default="127.0.0.1",
                               metadata=_about("Prometheus endpoint address"))
     metrics_port: int = field(default=9464, metadata=_about(
@@ -93,6 +101,8 @@ class ServiceSettings:
             raise ValueError("max_pixels must be >= 1")
         if not self.max_stream_fps > 0:
             raise ValueError("max_stream_fps must be > 0")
+        if self.max_seq_gap < 1 or self.resync_frames < 2:
+            raise ValueError("max_seq_gap must be >= 1 and resync_frames >= 2")
         if any(c in self.prefix for c in "*$?#") or self.prefix.strip("/") != self.prefix:
             raise ValueError(f"invalid key-expression prefix {self.prefix!r}")
 

@@ -41,6 +41,7 @@ from .commands import (
     StopSession,
 )
 from .decoding import decode_image
+from .intake import Numbering, TokenBucket, Verdict
 
 log = logging.getLogger("arcf.service.worker")
 
@@ -62,14 +63,33 @@ class _Session:
 class _Inbox:
     """The newest frames of one stream: filled by Zenoh's callback thread, drained by the loop.
 
+    Intake happens here, before anything is queued: a sample put on any key but the stream's
+    own (a wildcard put reaches every stream's subscriber) is refused and counted
+    (``invalid_key``), and the stream's rate limit refuses the excess of a flood, counted
+    (``rate_limited``) and reported by the loop, instead of the queue silently trimming it.
     ``deque.append``/``popleft`` are atomic, and a full deque drops its oldest entry, which is
     the drop-oldest policy a live video stream wants."""
 
-    def __init__(self, maxlen: int, wake: threading.Event) -> None:
+    def __init__(self, key: str, maxlen: int, rate: float, wake: threading.Event,
+                 metrics: Any) -> None:
+        self.key = key
         self.frames: deque[tuple[bytes, int]] = deque(maxlen=maxlen)
+        self.bucket = TokenBucket(rate)
         self.wake = wake
+        self.metrics = metrics
+        #: frames refused by the rate limit so far (the loop reports them)
+        self.rate_limited = 0
 
     def __call__(self, sample: Any) -> None:
+        if str(sample.key_expr) != self.key:
+            self.metrics.ERRORS.labels(kind=ErrorCode.INVALID_KEY.value).inc()
+            return
+        self.metrics.FRAMES_RECEIVED.inc()
+        if not self.bucket.take(time.monotonic()):
+            self.metrics.ERRORS.labels(kind=ErrorCode.RATE_LIMITED.value).inc()
+            self.rate_limited += 1
+            self.wake.set()
+            return
         self.frames.append((sample.payload.to_bytes(), time.time_ns()))
         self.wake.set()
 
@@ -86,26 +106,12 @@ class _Stream:
     subscriber: Any
     inbox: _Inbox
     errors: Any
+    numbering: Numbering
     sessions: dict[str, _Session] = field(default_factory=dict)
-    last_seq: int | None = None
-    #: token bucket of the per-stream frame rate limit: (tokens, last refill, monotonic s)
-    tokens: float = -1.0
-    refilled: float = 0.0
     #: when each kind of error notice was last put on the stream's error key
     noticed: dict[ErrorCode, float] = field(default_factory=dict)
-
-    def take_token(self, rate: float) -> bool:
-        """One frame's worth of the stream's rate budget: ``rate`` per second, bursts of one
-        second's worth."""
-        now = time.monotonic()
-        if self.tokens < 0:
-            self.tokens, self.refilled = rate, now
-        self.tokens = min(rate, self.tokens + (now - self.refilled) * rate)
-        self.refilled = now
-        if self.tokens >= 1.0:
-            self.tokens -= 1.0
-            return True
-        return False
+    #: rate-limited frames already reported
+    rate_reported: int = 0
 
 
 def _warm_up() -> None:
@@ -260,11 +266,14 @@ class Worker:
         stream_id = cmd.stream_id
         stream = self.streams.get(stream_id)
         if stream is None:
-            inbox = _Inbox(self.settings.frame_queue, self.wake)
+            s = self.settings
+            inbox = _Inbox(self.keys.frames(stream_id), s.frame_queue, s.max_stream_fps,
+                           self.wake, self.metrics)
             sub = self.session.declare_subscriber(self.keys.frames(stream_id), inbox)
             errors = self.session.declare_publisher(
                 self.keys.errors(stream_id), congestion_control=self.zenoh.CongestionControl.DROP)
-            stream = self.streams[stream_id] = _Stream(stream_id, sub, inbox, errors)
+            stream = self.streams[stream_id] = _Stream(
+                stream_id, sub, inbox, errors, Numbering(s.max_seq_gap, s.resync_frames))
             self._sync_with_router()
             self.metrics.STREAMS.inc()
         pub = self.session.declare_publisher(
@@ -318,31 +327,54 @@ class Worker:
         stream.errors.put(encode(ErrorMessage(code=code, message=message,
                                               stream_id=stream.stream_id, frame_seq=seq)))
 
+    def _report_intake(self, stream: _Stream) -> None:
+        """Tell a stream about frames its inbox refused for the rate (throttled notice; each
+        refused frame was counted at intake)."""
+        refused = stream.inbox.rate_limited - stream.rate_reported
+        if refused <= 0:
+            return
+        now = time.monotonic()
+        if now - stream.noticed.get(ErrorCode.RATE_LIMITED, -1e9) < 1.0:
+            return
+        stream.noticed[ErrorCode.RATE_LIMITED] = now
+        stream.rate_reported += refused
+        stream.errors.put(encode(ErrorMessage(
+            code=ErrorCode.RATE_LIMITED, stream_id=stream.stream_id,
+            message=f"stream {stream.stream_id!r} exceeds {self.settings.max_stream_fps:g} "
+                    f"frames/s; {refused} frame(s) refused since the last notice")))
+
     def _process(self, stream: _Stream, payload: bytes, received_ns: int) -> None:
         m = self.metrics
-        m.FRAMES_RECEIVED.inc()
         try:
             frame = decode(payload, expected=Frame, max_payload=self.settings.max_payload)
         except SchemaError as exc:
             self._error(stream, exc.code, str(exc), None)
             return
         if frame.stream_id != stream.stream_id:
-            self._error(stream, ErrorCode.INVALID_REQUEST,
+            self._error(stream, ErrorCode.INVALID_KEY,
                         f"frame says stream {frame.stream_id!r} on {stream.stream_id!r}", frame.seq)
             return
-        if stream.last_seq is not None and frame.seq <= stream.last_seq:
+        last = stream.numbering.last
+        verdict, lost = stream.numbering.admit(frame.seq)
+        if verdict is Verdict.STALE:
             # duplicate or out of order: tracking it would move the trackers back in time
             self._error(stream, ErrorCode.STALE_FRAME, f"frame {frame.seq} is not after frame "
-                        f"{stream.last_seq}; dropped", frame.seq, every_s=1.0)
+                        f"{last}; dropped", frame.seq, every_s=1.0)
             return
-        if not stream.take_token(self.settings.max_stream_fps):
-            self._error(stream, ErrorCode.RATE_LIMITED, f"stream {stream.stream_id!r} exceeds "
-                        f"{self.settings.max_stream_fps:g} frames/s; frame {frame.seq} refused",
-                        frame.seq, every_s=1.0)
+        if verdict is Verdict.JUMP:
+            self._error(stream, ErrorCode.SEQUENCE_JUMP, f"frame {frame.seq} is more than "
+                        f"{self.settings.max_seq_gap} frames after frame {last}; dropped (a "
+                        f"restarted numbering is followed after {self.settings.resync_frames} "
+                        "frames in a row)", frame.seq, every_s=1.0)
             return
-        if stream.last_seq is not None and frame.seq > stream.last_seq + 1:
-            m.FRAMES_DROPPED.inc(frame.seq - stream.last_seq - 1)
-        stream.last_seq = frame.seq
+        if verdict is Verdict.RESTART:
+            self._error(stream, ErrorCode.SEQUENCE_RESTARTED, f"the stream's numbering "
+                        f"restarted: frame {frame.seq} follows frame {last}; no frame counted "
+                        "as lost", frame.seq)
+            for s in stream.sessions.values():  # their ``dropped`` counts from here
+                if s.last_seq is not None:
+                    s.last_seq = frame.seq - 1
+        m.FRAMES_DROPPED.inc(lost)
         t0 = time.perf_counter()
         image, problem = decode_image(frame, self.settings.max_pixels)
         decode_s = time.perf_counter() - t0
@@ -422,6 +454,7 @@ class Worker:
                                     type(cmd).__name__, 1e3 * (time.perf_counter() - t0))
                 worked = False
                 for stream in list(self.streams.values()):
+                    self._report_intake(stream)
                     item = stream.inbox.pop()
                     if item is None:
                         continue

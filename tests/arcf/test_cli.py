@@ -60,7 +60,7 @@ def test_track_init_from_annotation_and_overrides(tmp_path: Path) -> None:
     ("args", "message"),
     [
         (["--box", "900,900,10,10"], "entirely outside"),
-        (["--box", "101,101,40,30", "--set", "gamma=-1"], "gamma must be >= 0"),
+        (["--box", "101,101,40,30", "--set", "gamma=-1"], "gamma must be a finite number in"),
         (["--box", "101,101,40,30", "--set", "gama=1"], "unknown parameter"),
         ([], "give the initial box"),
     ],

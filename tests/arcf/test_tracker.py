@@ -749,7 +749,7 @@ def test_unknown_override_names_the_parameter_and_the_valid_ones() -> None:
 @pytest.mark.parametrize(
     ("override", "words"),
     [
-        ({"admm_iterations": 0}, "admm_iterations must be >= 1"),
+        ({"admm_iterations": 0}, "admm_iterations must be an integer in [1, 20], got 0"),
         ({"learning_rate": 0.0}, "learning_rate"),
         ({"learning_rate": 1.5}, "learning_rate"),
         ({"gamma": -0.1}, "gamma"),
@@ -957,3 +957,50 @@ def test_explicit_table_path_beats_the_env(monkeypatch: pytest.MonkeyPatch) -> N
     monkeypatch.setenv("ARCF_COLORNAMES", BOGUS_CN)
     r = create_tracker("arcf-hc", colornames_path=table).init(GOOD_FRAME, GOOD_BOX)
     assert math.isfinite(r.peak)
+
+
+def test_every_parameter_is_declared_and_every_preset_within_its_ranges() -> None:
+    """One table says what each override accepts; the presets' own values are inside it, so a
+    service that enforces it refuses no preset."""
+    import dataclasses
+
+    from arcf.presets import (
+        HOST_PARAMETERS,
+        PRESETS,
+        RELEASE_COMPATIBLE,
+        TUNABLE,
+        ScaleFilterParams,
+        TrackerParams,
+    )
+
+    fields = {f.name for f in dataclasses.fields(TrackerParams)} - {"name", "scale_filter"}
+    sf_fields = {f"scale_filter.{f.name}" for f in dataclasses.fields(ScaleFilterParams)}
+    assert set(TUNABLE) == (fields - HOST_PARAMETERS) | sf_fields
+    for preset in PRESETS.values():
+        for key, tunable in TUNABLE.items():
+            owner, _, attr = key.rpartition(".")
+            value = getattr(preset.scale_filter if owner else preset, attr)
+            tunable.check(key, list(value) if isinstance(value, tuple) else value)
+        make_params(preset.name, **RELEASE_COMPATIBLE)
+
+
+@pytest.mark.parametrize(
+    ("override", "words"),
+    [
+        ({"gamma": "x"}, "gamma must be a finite number in [0, 100], got 'x'"),
+        ({"admm_iterations": 4000}, "admm_iterations must be an integer in [1, 20], got 4000"),
+        ({"admm_iterations": True}, "admm_iterations must be an integer"),
+        ({"round_translation": 1}, "round_translation must be true or false"),
+        ({"features": ["fhog", "fhog"]}, "features must be a list of distinct values"),
+        ({"scale_filter": {"n_scales": 1000}}, "scale_filter.n_scales must be an integer in"),
+        ({"sampling": 3}, "sampling must be one of 'release', 'pyramid'"),
+        ({"name": "x"}, "name is the preset's"),
+    ],
+)
+def test_overrides_of_the_wrong_type_or_range_are_refused_naming_the_range(
+        override: dict, words: str) -> None:
+    from arcf.errors import InvalidParameterError
+
+    with pytest.raises(InvalidParameterError) as info:
+        make_params("arcf-hc", **override)
+    assert words in str(info.value)
