@@ -114,6 +114,14 @@ KEY_ROUTES: tuple[KeyRoute, ...] = (
         "the spec of every running session, so that a surviving instance can resume it",
         ("session_spec",),
     ),
+    KeyRoute(
+        "clients",
+        "<prefix>/clients/<client>",
+        "ground station liveliness tokens (optional)",
+        "a station that declares one and names it in start (client_id) has its sessions end "
+        "when the token is gone longer than the service's client_grace_s",
+        (),
+    ),
 )
 
 
@@ -190,6 +198,14 @@ class KeySpace:
     def all_workers(self) -> str:
         """``<prefix>/workers/*/*``: every worker token of every instance."""
         return f"{self.prefix}/workers/*/*"
+
+    def client_token(self, client: str) -> str:
+        """``<prefix>/clients/<client>``: a ground station's liveliness token (optional: the
+        sessions it starts with this ``client_id`` end when it is gone)."""
+        return f"{self.prefix}/clients/{check_id(client, 'client id')}"
+
+    def all_client_tokens(self) -> str:
+        return f"{self.prefix}/clients/*"
 
     def instance_token(self, instance: str) -> str:
         """``<prefix>/instances/<instance>``: a service instance's liveliness token."""

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import math
 from enum import Enum
-from typing import Annotated, Any, ClassVar
+from typing import Annotated, Any, ClassVar, Literal
 
 from pydantic import (
     BaseModel,
@@ -124,6 +124,11 @@ class ErrorCode(str, Enum):
     SEQUENCE_RESTARTED = "sequence_restarted"
     #: A frame put on a key expression with wildcards, or on another stream's key.
     INVALID_KEY = "invalid_key"
+    #: A frame a session's tracker cannot use (its size changed mid-stream: reinit).
+    INVALID_FRAME = "invalid_frame"
+    #: A session the service ended by itself: no frame for ``session_idle_s``, or its
+    #: station's liveliness token gone for longer than ``client_grace_s``.
+    SESSION_EXPIRED = "session_expired"
     #: A stream sending more frames per second than ``max_stream_fps``.
     RATE_LIMITED = "rate_limited"
     #: An image whose header declares more pixels than ``max_pixels`` (decompression bomb).
@@ -415,6 +420,11 @@ class StartRequest(Message):
     frame_seq: NonNegInt | None = Field(
         default=None, description="Frame the box was drawn on; absent = the next frame."
     )
+    client_id: Id | None = Field(
+        default=None,
+        description="The station's liveliness token id (<prefix>/clients/<client_id>): when "
+        "the token is gone longer than the service's grace period, its sessions end.",
+    )
 
 
 class ReinitRequest(Message):
@@ -445,6 +455,9 @@ class StatusRequest(Message):
     type: ClassVar[str] = "status_request"
 
     request_id: Id = Field(description="Client-chosen; echoed in the reply.")
+    stream_id: Id | None = Field(
+        default=None, description="Only this stream's sessions (e.g. a restarted station "
+        "finding the sessions it left behind).")
 
 
 class Ack(Message):
@@ -500,11 +513,18 @@ class Result(Message):
     dropped: NonNegInt = Field(
         description="Frames of this stream skipped since the session's previous result."
     )
-    message: StrictStr | None = Field(default=None, description='Explanation for status "error".')
+    message: StrictStr | None = Field(
+        default=None, description='Explanation for status "error" (and why a session stopped).')
+    code: ErrorCode | None = Field(
+        default=None, description='Machine-readable reason: always set on status "error", and '
+        'on "stopped" when the service ended the session by itself.')
     received_ts_ns: TimestampNs = Field(description="When the service received the frame.")
     decode_s: AnyFloat = Field(description="Seconds spent decoding the frame.")
     track_s: AnyFloat = Field(description="Seconds spent in the tracker.")
     published_ts_ns: TimestampNs = Field(description="When the service published this result.")
+
+
+SessionState = Literal["waiting", "tracking"]
 
 
 class SessionInfo(WireModel):
@@ -513,7 +533,16 @@ class SessionInfo(WireModel):
     session_id: Id
     stream_id: Id
     preset: Id
-    frames: NonNegInt = Field(description="Frames processed by this session so far.")
+    frames: NonNegInt | None = Field(
+        default=None, description="Frames processed by this session so far (null: run by "
+        "another instance, which knows).")
+    state: SessionState | None = Field(
+        default=None, description="waiting: for the frame its box applies to; tracking: "
+        "producing results; null: run by another instance.")
+    last_seq: NonNegInt | None = Field(default=None, description="Frame of its last result.")
+    last_result_ts_ns: TimestampNs | None = Field(
+        default=None, description="When its last result was published.")
+    client_id: Id | None = Field(default=None, description="The station that started it.")
 
 
 class SessionSpec(Message):
@@ -533,6 +562,7 @@ class SessionSpec(Message):
                                                         max_length=MAX_OVERRIDES)
     box: Box
     frame_seq: NonNegInt | None = None
+    client_id: Id | None = None
     last_seq: NonNegInt | None = Field(default=None, description="Frame of the last result.")
     last_box: Box | None = Field(default=None, description="Box of the last result.")
 

@@ -72,6 +72,15 @@ class Service:
         self.cluster.start()  # the others' sessions are known before this instance joins
         self.queryable = self.session.declare_queryable(self.keys.control(),
                                                         self.control.handle_query)
+
+        def client_token(sample: Any) -> None:
+            client = str(sample.key_expr).rsplit("/", 1)[-1]
+            self.control.client_token(client, sample.kind == zenoh.SampleKind.PUT)
+
+        # stations' liveliness tokens (optional in the contract): their sessions end when
+        # the station is gone (see ControlPlane.client_token)
+        self.clients = self.session.liveliness().declare_subscriber(
+            self.keys.all_client_tokens(), client_token, history=True)
         # Frames of streams nobody tracks: counted, and answered with a rate-limited error.
         # The callback only reads the key; it never touches the payload.
         last_notice: dict[str, float] = {}

@@ -97,10 +97,18 @@ class TrackingClient:
         prefix: str = "arcf/v1",
         mode: str = "client",
         session: zenoh.Session | None = None,
+        client_id: str | None = None,
+        tie_sessions: bool = True,
     ) -> None:
+        """``tie_sessions``: declare this station's liveliness token and name it in every
+        ``start``, so that the service ends the sessions it started when the station is gone
+        (closed, killed or cut off) for longer than the service's grace period."""
         self.keys = KeySpace(prefix)
         self._own = session is None
         self.session = session if session is not None else open_session(mode, connect=connect)
+        self.client_id = client_id or uuid.uuid4().hex
+        self._token = (self.session.liveliness().declare_token(
+            self.keys.client_token(self.client_id)) if tie_sessions else None)
         self._publishers: dict[str, Any] = {}
         self._seq: dict[str, int] = {}
         self._lock = threading.Lock()
@@ -174,8 +182,8 @@ class TrackingClient:
               frame_seq: int | None = None, timeout: float = 5.0) -> Ack:
         return self._request(StartRequest(
             request_id=uuid.uuid4().hex, stream_id=stream_id, session_id=session_id,
-            box=list(box), preset=preset, overrides=overrides or {}, frame_seq=frame_seq),
-            timeout)
+            box=list(box), preset=preset, overrides=overrides or {}, frame_seq=frame_seq,
+            client_id=self.client_id if self._token is not None else None), timeout)
 
     def reinit(self, session_id: str, box: Sequence[float], *, frame_seq: int | None = None,
                timeout: float = 5.0) -> Ack:
@@ -186,8 +194,10 @@ class TrackingClient:
         return self._request(StopRequest(request_id=uuid.uuid4().hex, session_id=session_id),
                              timeout)
 
-    def status(self, timeout: float = 5.0) -> Status:
-        return self._request(StatusRequest(request_id=uuid.uuid4().hex), timeout)
+    def status(self, stream_id: str | None = None, timeout: float = 5.0) -> Status:
+        """What the service runs (only ``stream_id``'s sessions, if given)."""
+        return self._request(StatusRequest(request_id=uuid.uuid4().hex, stream_id=stream_id),
+                             timeout)
 
     # ------------------------------------------------------------------ results
     def results(self, stream_id: str, session_id: str | None = None,
@@ -200,6 +210,9 @@ class TrackingClient:
     def close(self) -> None:
         for pub in self._publishers.values():
             pub.undeclare()
+        if self._token is not None:
+            self._token.undeclare()
+            self._token = None
         if self._own:
             self.session.close()
 

@@ -4,8 +4,9 @@ that a misspelt field fails where it is written instead of as a KeyError in anot
 
 Control plane -> worker: :class:`StartSession`, :class:`ReinitSession`, :class:`StopSession`,
 each with the ``reply_id`` the control plane waits on. Worker -> control plane:
-:class:`Confirmation` of a command, or :class:`Fenced` when a worker dropped its sessions
-because the instance lost its place in the cluster.
+:class:`Confirmation` of a command; :class:`Fenced` when a worker dropped its sessions
+because the instance lost its place in the cluster; :class:`SessionsEnded` when it ended
+sessions by itself (idle, unusable box, over budget); :class:`SessionStats` every second.
 """
 
 from __future__ import annotations
@@ -41,7 +42,12 @@ class ReinitSession:
 
 @dataclass(frozen=True)
 class StopSession:
+    """Stop a session. With a ``reason`` (the service ends it, not its station), its last
+    result says so: status ``stopped``, ``code`` and ``reason`` as its message."""
+
     session_id: str
+    reason: str | None = None
+    code: str | None = None
     reply_id: str | None = None
 
 
@@ -50,11 +56,13 @@ Command = StartSession | ReinitSession | StopSession
 
 @dataclass(frozen=True)
 class Confirmation:
-    """A command applied (``ok``) or failed (``message`` says why)."""
+    """A command applied (``ok``) or refused (``code``, a wire error code, and ``message``
+    say why; no code: the worker failed)."""
 
     reply_id: str
     ok: bool
     message: str = ""
+    code: str | None = None
 
 
 @dataclass(frozen=True)
@@ -62,3 +70,32 @@ class Fenced:
     """Worker ``worker`` dropped every session it ran (the instance's token was lost)."""
 
     worker: int
+
+
+@dataclass(frozen=True)
+class SessionsEnded:
+    """Worker ``worker`` ended these sessions by itself (each got a last ``stopped`` result
+    with the reason): the control plane forgets them."""
+
+    worker: int
+    sessions: tuple[str, ...]
+    reason: str
+
+
+@dataclass(frozen=True)
+class SessionStat:
+    """What ``status`` reports of one session."""
+
+    frames: int
+    last_seq: int | None
+    last_result_ts_ns: int | None
+    state: Literal["waiting", "tracking"]
+
+
+@dataclass(frozen=True)
+class SessionStats:
+    """Every session of worker ``worker``, sent once a second."""
+
+    worker: int
+    sessions: dict[str, SessionStat]
+

@@ -28,7 +28,16 @@ from arcf.presets import HOST_PARAMETERS, PRESETS
 from schemas import ErrorCode
 
 from .cluster import Cluster, owner, weight
-from .commands import Command, Fenced, ReinitSession, StartSession, StopSession
+from .commands import (
+    Command,
+    Fenced,
+    ReinitSession,
+    SessionsEnded,
+    SessionStat,
+    SessionStats,
+    StartSession,
+    StopSession,
+)
 
 __all__ = ["ControlPlane", "SessionRecord", "owner", "place"]
 
@@ -55,6 +64,7 @@ class SessionRecord:
     preset: str
     worker: int
     started: float
+    client_id: str | None = None
 
 
 class ControlPlane:
@@ -74,6 +84,10 @@ class ControlPlane:
         self.version = version
         self.started = time.time()
         self.sessions: dict[str, SessionRecord] = {}
+        #: what each worker last reported of its sessions (``status``)
+        self.stats: dict[int, dict[str, SessionStat]] = {}
+        #: stations whose liveliness token is up (``client_id`` of ``start``)
+        self.live_clients: set[str] = set()
         self.lock = threading.Lock()
         # Requests and rebalancing change what runs here; one at a time, or a rebalance could
         # see a session admitted but not yet in the registry and stop it as withdrawn.
@@ -91,10 +105,17 @@ class ControlPlane:
             if isinstance(item, Fenced):
                 self._fenced(item.worker)
                 continue
+            if isinstance(item, SessionsEnded):
+                self._ended(item)
+                continue
+            if isinstance(item, SessionStats):
+                with self.lock:
+                    self.stats[item.worker] = item.sessions
+                continue
             with self.lock:
                 waiter = self._waiting.pop(item.reply_id, None)
             if waiter is not None:
-                waiter[1].extend((item.ok, item.message))
+                waiter[1].extend((item.ok, item.message, item.code))
                 waiter[0].set()
 
     def _forward(self, worker: int, cmd: Command) -> None:
@@ -113,7 +134,54 @@ class ControlPlane:
             raise _Refused(ErrorCode.INTERNAL,
                            f"worker {worker} did not confirm within {self.timeout} s")
         if not slot[0]:
+            if slot[2]:  # refused for the request's own fault
+                raise _Refused(ErrorCode(slot[2]), slot[1])
             raise _Refused(ErrorCode.INTERNAL, f"worker {worker} failed: {slot[1]}")
+
+    def _ended(self, item: SessionsEnded) -> None:
+        """A worker ended sessions by itself (idle, unusable box, over budget): they are gone
+        from this instance and from the cluster's registry, so nobody resumes them."""
+        with self.op_lock:
+            with self.lock:
+                for sid in item.sessions:
+                    self.sessions.pop(sid, None)
+            if self.cluster is not None:
+                for sid in item.sessions:
+                    self.cluster.withdraw(sid)
+
+    # ------------------------------------------------------------------ stations
+    def client_token(self, client_id: str, alive: bool) -> None:
+        """A station's liveliness token appeared or vanished. Its sessions end
+        ``client_grace_s`` after it vanished, unless it came back meanwhile (a reconnect)."""
+        with self.lock:
+            if alive:
+                self.live_clients.add(client_id)
+                return
+            self.live_clients.discard(client_id)
+        timer = threading.Timer(self.settings.client_grace_s, self._client_gone, (client_id,))
+        timer.daemon = True
+        timer.start()
+
+    def _client_gone(self, client_id: str) -> None:
+        with self.lock:
+            if client_id in self.live_clients:
+                return
+            mine = [r for r in self.sessions.values() if r.client_id == client_id]
+        for rec in mine:
+            with self.op_lock:
+                with self.lock:
+                    if self.sessions.pop(rec.session_id, None) is None:
+                        continue
+                if self.cluster is not None:
+                    self.cluster.withdraw(rec.session_id)
+                try:
+                    self._forward(rec.worker, StopSession(
+                        rec.session_id, code=ErrorCode.SESSION_EXPIRED.value,
+                        reason=f"session ended: its station ({client_id}) is gone for more "
+                               f"than {self.settings.client_grace_s:g} s"))
+                except _Refused as exc:
+                    log.error("could not end session %s: %s", rec.session_id, exc.message)
+            log.info("session %s ended: station %s gone", rec.session_id, client_id)
 
     def _fenced(self, worker: int) -> None:
         """A worker dropped its sessions because this instance's token was lost (see
@@ -169,7 +237,7 @@ class ControlPlane:
             if mine and sid not in local:
                 box, frame_seq, resumed = self.cluster.resume_point(sid)
                 try:
-                    w = self._admit(sid, spec.stream_id, spec.preset)
+                    w = self._admit(sid, spec.stream_id, spec.preset, spec.client_id)
                     self._forward(w, StartSession(
                         session_id=sid, stream_id=spec.stream_id, box=tuple(box),
                         preset=spec.preset, overrides=dict(spec.overrides), frame_seq=frame_seq,
@@ -198,7 +266,8 @@ class ControlPlane:
             except _Refused as exc:
                 log.error("could not stop session %s: %s", session_id, exc.message)
 
-    def _admit(self, sid: str, stream_id: str, preset: str) -> int:
+    def _admit(self, sid: str, stream_id: str, preset: str,
+               client_id: str | None = None) -> int:
         """Record a local session and choose its worker: the stream's worker if it has one
         (every session of a stream on one worker: the frame is decoded once), else the least
         loaded."""
@@ -220,7 +289,8 @@ class ControlPlane:
                 for _stream, worker in {(r.stream_id, r.worker) for r in self.sessions.values()}:
                     load[worker] += 1
                 w = place(stream_id, load)
-            self.sessions[sid] = SessionRecord(sid, stream_id, preset, w, time.time())
+            self.sessions[sid] = SessionRecord(sid, stream_id, preset, w, time.time(),
+                                               client_id)
         return w
 
     # ------------------------------------------------------------------ queries
@@ -318,7 +388,7 @@ class ControlPlane:
         sid = req.session_id or uuid.uuid4().hex
         if self.cluster is not None and self.cluster.spec(sid) is not None:
             raise _Refused(ErrorCode.INVALID_REQUEST, f"session {sid!r} already exists")
-        w = self._admit(sid, req.stream_id, req.preset)
+        w = self._admit(sid, req.stream_id, req.preset, req.client_id)
         try:
             self._forward(w, StartSession(
                 session_id=sid, stream_id=req.stream_id, box=tuple(req.box), preset=req.preset,
@@ -330,7 +400,8 @@ class ControlPlane:
         if self.cluster is not None:
             self.cluster.publish(SessionSpec(
                 session_id=sid, stream_id=req.stream_id, preset=req.preset,
-                overrides=dict(req.overrides), box=req.box, frame_seq=req.frame_seq))
+                overrides=dict(req.overrides), box=req.box, frame_seq=req.frame_seq,
+                client_id=req.client_id))
         return Ack(request_id=req.request_id, session_id=sid, stream_id=req.stream_id,
                    message=f"session started on worker {w} (subscribed, tracker ready)")
 
@@ -372,15 +443,33 @@ class ControlPlane:
         from schemas import SessionInfo, Status
 
         with self.lock:
-            records = [(r.session_id, r.stream_id, r.preset) for r in self.sessions.values()]
+            records = [(r.session_id, r.stream_id, r.preset, r.client_id)
+                       for r in self.sessions.values()]
+            stats = {sid: st for per_worker in self.stats.values()
+                     for sid, st in per_worker.items()}
         if self.cluster is not None:  # every instance's sessions
-            records = [(s.session_id, s.stream_id, s.preset) for s in self.cluster.all_specs()]
+            records = [(s.session_id, s.stream_id, s.preset, s.client_id)
+                       for s in self.cluster.all_specs()]
+        if req.stream_id is not None:
+            records = [r for r in records if r[1] == req.stream_id]
+
+        with self.lock:
+            for sid in self.sessions:  # started here, not reported by its worker yet
+                stats.setdefault(sid, SessionStat(0, None, None, "waiting"))
+
+        def info(sid: str, stream: str, preset: str, client: str | None) -> Any:
+            st = stats.get(sid)  # known for this instance's sessions
+            return SessionInfo(
+                session_id=sid, stream_id=stream, preset=preset, client_id=client,
+                frames=st.frames if st else None, state=st.state if st else None,
+                last_seq=st.last_seq if st else None,
+                last_result_ts_ns=st.last_result_ts_ns if st else None)
+
         return Status(
             request_id=req.request_id, instance_id=self.settings.instance_id,
             version=self.version, workers=len(self.queues),
-            streams=sorted({stream for _, stream, _ in records}),
-            sessions=[SessionInfo(session_id=sid, stream_id=stream, preset=preset, frames=0)
-                      for sid, stream, preset in sorted(records)],
+            streams=sorted({r[1] for r in records}),
+            sessions=[info(*r) for r in sorted(records)],
             uptime_s=time.time() - self.started,
             instances=self.cluster.live() if self.cluster is not None
             else [self.settings.instance_id],

@@ -69,6 +69,16 @@ class ServiceSettings:
         "frames in a row, each refused as stale or a jump but following one another, after "
         "which a stream follows their numbering (a restarted station): no single frame can "
         "take a stream's numbering over"))
+    session_idle_s: float = field(default=60.0, metadata=_about(
+        "a session that produced no result for this long (its stream went quiet, or it waits "
+        "for a frame that never comes) ends by itself, with a last 'stopped' result saying "
+        "why (session_expired)"))
+    client_grace_s: float = field(default=10.0, metadata=_about(
+        "a session started with a client_id ends this long after that station's liveliness "
+        "token disappears (unless it comes back: a reconnect)"))
+    session_budget_ms: float = field(default=250.0, metadata=_about(
+        "a session whose frames take longer than this on average (over its last frames) "
+        "ends with limit_exceeded: one session must not starve the others on its worker"))
     metrics_host: str = field(default="127.0.0.1",
                               metadata=_about("Prometheus endpoint address"))
     metrics_port: int = field(default=9464, metadata=_about(
@@ -101,6 +111,10 @@ class ServiceSettings:
             raise ValueError("max_pixels must be >= 1")
         if not self.max_stream_fps > 0:
             raise ValueError("max_stream_fps must be > 0")
+        if not (self.session_idle_s > 0 and self.client_grace_s >= 0
+                and self.session_budget_ms > 0):
+            raise ValueError("session_idle_s and session_budget_ms must be > 0, "
+                             "client_grace_s >= 0")
         if self.max_seq_gap < 1 or self.resync_frames < 2:
             raise ValueError("max_seq_gap must be >= 1 and resync_frames >= 2")
         if any(c in self.prefix for c in "*$?#") or self.prefix.strip("/") != self.prefix:

@@ -37,6 +37,9 @@ from .commands import (
     Confirmation,
     Fenced,
     ReinitSession,
+    SessionsEnded,
+    SessionStat,
+    SessionStats,
     StartSession,
     StopSession,
 )
@@ -58,6 +61,24 @@ class _Session:
     pending_status: str = "initialized"
     last_seq: int | None = None
     frames: int = 0
+    #: monotonic time of its start or last result (``session_idle_s`` counts from here)
+    last_activity: float = field(default_factory=time.monotonic)
+    last_result_ns: int | None = None
+    #: mean seconds per frame, exponentially weighted (``session_budget_ms``)
+    cost_s: float = 0.0
+
+    def stat(self) -> SessionStat:
+        return SessionStat(self.frames, self.last_seq, self.last_result_ns,
+                           "tracking" if self.tracker.initialized and self.pending_box is None
+                           else "waiting")
+
+
+class _CommandRefused(Exception):
+    """A command the worker refuses for the request's own fault (a wire error code)."""
+
+    def __init__(self, code: ErrorCode, message: str) -> None:
+        super().__init__(message)
+        self.code = code
 
 
 class _Inbox:
@@ -196,19 +217,47 @@ class Worker:
     def _final_statuses(self, reason: str) -> None:
         """One last result per session, status ``stopped``: a ground station learns that its
         session ended, and why, instead of watching results stop."""
+        for s in self.sessions.values():
+            self._publish_stopped(s, reason, None)
+
+    def _publish_stopped(self, s: _Session, reason: str, code: ErrorCode | None) -> None:
         now = time.time_ns()
         nan = float("nan")
-        for s in self.sessions.values():
-            try:
-                s.publisher.put(encode(Result(
-                    session_id=s.session_id, stream_id=s.stream_id,
-                    frame_seq=s.last_seq if s.last_seq is not None else 0, capture_ts_ns=now,
-                    box=[nan, nan, nan, nan], peak=nan, psr=nan, aberrance=nan,
-                    aberrance_release=nan, scale=nan, status="stopped", dropped=0,
-                    message=reason, received_ts_ns=now, decode_s=0.0, track_s=0.0,
-                    published_ts_ns=now)))
-            except Exception:  # shutting down: a failed notice must not block the rest
-                log.debug("final status of %s not sent", s.session_id, exc_info=True)
+        try:
+            s.publisher.put(encode(Result(
+                session_id=s.session_id, stream_id=s.stream_id,
+                frame_seq=s.last_seq if s.last_seq is not None else 0, capture_ts_ns=now,
+                box=[nan, nan, nan, nan], peak=nan, psr=nan, aberrance=nan,
+                aberrance_release=nan, scale=nan, status="stopped", dropped=0,
+                message=reason, code=code, received_ts_ns=now, decode_s=0.0, track_s=0.0,
+                published_ts_ns=now)))
+        except Exception:  # shutting down: a failed notice must not block the rest
+            log.debug("final status of %s not sent", s.session_id, exc_info=True)
+
+    def _end(self, s: _Session, reason: str, code: ErrorCode) -> None:
+        """End a session by the service's own decision: its last result says why, the
+        control plane forgets it, and the refusal is counted."""
+        self._publish_stopped(s, reason, code)
+        self._stop(s.session_id)
+        self.metrics.ERRORS.labels(kind=code.value).inc()
+        self.responses.put(SessionsEnded(self.index, (s.session_id,), reason))
+        log.info("worker %d: session %s ended: %s", self.index, s.session_id, reason)
+
+    def _housekeeping(self) -> None:
+        """Once a second: end the sessions idle past ``session_idle_s``, report the rest."""
+        now = time.monotonic()
+        idle = self.settings.session_idle_s
+        for s in list(self.sessions.values()):
+            if now - s.last_activity <= idle:
+                continue
+            if s.tracker.initialized and s.pending_box is None:
+                why = f"no frame of stream {s.stream_id!r} for {idle:g} s"
+            else:
+                after = "the next frame" if s.pending_seq is None else f"frame {s.pending_seq}"
+                why = f"waited {idle:g} s for {after} of stream {s.stream_id!r}"
+            self._end(s, f"session ended: {why}", ErrorCode.SESSION_EXPIRED)
+        self.responses.put(SessionStats(
+            self.index, {sid: s.stat() for sid, s in self.sessions.items()}))
 
     def _drain(self) -> None:
         """On shutdown: finish the frames already received (at most ``frame_queue`` per
@@ -243,6 +292,8 @@ class Worker:
         try:
             self._apply_command(cmd)
             reply = Confirmation(cmd.reply_id or "", True)
+        except _CommandRefused as exc:
+            reply = Confirmation(cmd.reply_id or "", False, str(exc), exc.code.value)
         except Exception as exc:  # reported to the requester, never fatal to the worker
             log.exception("worker %d: command %s failed", self.index, type(cmd).__name__)
             reply = Confirmation(cmd.reply_id or "", False, f"{type(exc).__name__}: {exc}")
@@ -255,16 +306,36 @@ class Worker:
         elif isinstance(cmd, ReinitSession):
             s = self.sessions.get(cmd.session_id)
             if s is not None:
+                self._check_frame_seq(self.streams[s.stream_id], cmd.frame_seq)
                 s.pending_box, s.pending_seq = tuple(cmd.box), cmd.frame_seq
                 s.pending_status = "reinitialized"
+                s.last_activity = time.monotonic()
         elif isinstance(cmd, StopSession):
+            s = self.sessions.get(cmd.session_id)
+            if s is not None and cmd.reason:
+                self._publish_stopped(s, cmd.reason, ErrorCode(cmd.code) if cmd.code else None)
+                if cmd.code:
+                    self.metrics.ERRORS.labels(kind=cmd.code).inc()
             self._stop(cmd.session_id)
         else:
             raise TypeError(f"unknown worker command {cmd!r}")
 
+    def _check_frame_seq(self, stream: _Stream | None, frame_seq: int | None) -> None:
+        """A box for a frame far beyond the stream's last one would wait for a frame that may
+        never come: refused (a box for a past frame applies to the next frame, and its result
+        says so)."""
+        last = stream.numbering.last if stream is not None else None
+        if frame_seq is not None and last is not None and \
+                frame_seq > last + self.settings.max_seq_gap:
+            raise _CommandRefused(ErrorCode.INVALID_REQUEST, f"frame_seq {frame_seq} is more "
+                                  f"than {self.settings.max_seq_gap} frames after the stream's "
+                                  f"last frame {last}")
+
     def _start(self, cmd: StartSession) -> None:
         stream_id = cmd.stream_id
         stream = self.streams.get(stream_id)
+        if cmd.status != "resumed":
+            self._check_frame_seq(stream, cmd.frame_seq)
         if stream is None:
             s = self.settings
             inbox = _Inbox(self.keys.frames(stream_id), s.frame_queue, s.max_stream_fps,
@@ -388,25 +459,32 @@ class Worker:
         for s in list(stream.sessions.values()):
             dropped = 0 if s.last_seq is None else max(frame.seq - s.last_seq - 1, 0)
             status, message, r = "tracking", None, None
+            error_code: ErrorCode | None = None
+            unusable_box = False
             t1 = time.perf_counter()
             if image is None:
-                status, message = "error", (problem or ("", "frame could not be decoded"))[1]
+                status, message = "error", text
+                error_code = code
             elif s.pending_box is not None and (
                 s.pending_seq is None or frame.seq >= s.pending_seq
             ):
                 try:
                     r = s.tracker.init(image, s.pending_box)
                     status = s.pending_status
+                    if s.pending_seq is not None and frame.seq > s.pending_seq:
+                        message = (f"box of frame {s.pending_seq} applied to frame {frame.seq}"
+                                   " (its frame never came)")
                 except ARCFError as exc:
                     status, message = "error", str(exc)
-                    m.ERRORS.labels(kind=ErrorCode.INVALID_BOX.value).inc()
+                    error_code, unusable_box = ErrorCode.INVALID_BOX, True
                 s.pending_box = None
             elif s.tracker.initialized:
                 try:
                     r = s.tracker.update(image)
                 except ARCFError as exc:
                     status, message = "error", str(exc)
-                    m.ERRORS.labels(kind="invalid_frame").inc()
+                    error_code = ErrorCode.INVALID_FRAME
+                    m.ERRORS.labels(kind=error_code.value).inc()
             else:
                 continue  # waiting for the frame its box was drawn on
             track_s = time.perf_counter() - t1
@@ -423,13 +501,25 @@ class Worker:
                 aberrance=r.aberrance if r else nan,
                 aberrance_release=r.aberrance_release if r else nan,
                 scale=r.scale if r else nan, status=status, dropped=dropped, message=message,
-                received_ts_ns=received_ns, decode_s=decode_s, track_s=track_s,
-                published_ts_ns=published,
+                code=error_code, received_ts_ns=received_ns, decode_s=decode_s,
+                track_s=track_s, published_ts_ns=published,
             )
             s.publisher.put(encode(result))
             m.RESULTS.inc()
             if frame.capture_ts_ns > 0:
                 m.END_TO_END.observe(max(published - frame.capture_ts_ns, 0) / 1e9)
+            s.last_activity, s.last_result_ns = time.monotonic(), published
+            if unusable_box:  # no tracker to run: the session ends, saying so
+                self._end(s, f"session ended: its box does not fit frame {frame.seq} "
+                          f"({message})", ErrorCode.INVALID_BOX)
+                continue
+            s.cost_s = track_s if s.frames == 1 else 0.8 * s.cost_s + 0.2 * track_s
+            budget = self.settings.session_budget_ms / 1e3
+            if s.frames >= 5 and s.cost_s > budget:
+                self._end(s, f"session ended: its frames take {1e3 * s.cost_s:.0f} ms, "
+                          f"above the {1e3 * budget:g} ms budget of a session "
+                          "(session_budget_ms); other streams share its worker",
+                          ErrorCode.LIMIT_EXCEEDED)
 
     # ------------------------------------------------------------------ loop
     def run(self) -> None:
@@ -476,6 +566,7 @@ class Worker:
                 self.busy.set(busy_s / (now - t_window))
                 self.memory.set(self.metrics.resident_bytes())
                 busy_s, t_window = 0.0, now
+                self._housekeeping()
         if self.stop.is_set():
             self._drain()
 

@@ -174,3 +174,160 @@ def test_overrides_out_of_type_or_range_are_refused_before_any_worker(
         assert errors_by_kind(service)["invalid_parameter"] == before + 1
         assert client.status().sessions == [] or all(
             s.stream_id != "overridden" for s in client.status().sessions)
+
+
+# ---------------------------------------------------------------------------- session lifetime
+@pytest.fixture(scope="module")
+def strict():
+    """A service with short lifetimes, to see sessions end within a test's time."""
+    svc = ServiceProcess("--session-idle-s", "2", "--client-grace-s", "1",
+                         "--max-sessions", "4")
+    yield svc
+    assert svc.stop() == 0
+
+
+class Watcher:
+    """Results of a stream, watched by a client of its own (one that outlives the station)."""
+
+    def __init__(self, client: TrackingClient, stream: str) -> None:
+        self.results: list[Any] = []
+        self.sub = client.results(stream, callback=self.results.append)
+
+    def wait_for(self, status: str, timeout: float) -> Any:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            hit = [r for r in self.results if r.status.value == status]
+            if hit:
+                return hit[0]
+            time.sleep(0.05)
+        raise AssertionError(f"no {status} result within {timeout} s: "
+                             f"{[(r.frame_seq, r.status.value) for r in self.results]}")
+
+
+def test_a_quiet_stream_ends_its_sessions_saying_why(strict, clip) -> None:
+    with TrackingClient(connect=[strict.endpoint]) as client:
+        watch = Watcher(client, "quiet")
+        ack = client.start("quiet", clip.box, preset="bacf", frame_seq=0)
+        for i in range(3):
+            client.publish_frame("quiet", data=clip.frames[i], seq=i)
+            time.sleep(0.1)
+        status = client.status(stream_id="quiet")
+        (info,) = status.sessions
+        assert info.session_id == ack.session_id and info.client_id == client.client_id
+        t0 = time.monotonic()
+        stopped = watch.wait_for("stopped", timeout=6)
+        assert 1.5 < time.monotonic() - t0 < 5
+        assert stopped.code.value == "session_expired" and "no frame" in stopped.message
+        assert client.status(stream_id="quiet").sessions == []
+        assert errors_by_kind(strict)["session_expired"] >= 1
+
+
+def test_sessions_of_a_vanished_station_end_and_free_their_places(strict, clip) -> None:
+    # a station starts as many sessions as the instance allows, then is SIGKILLed
+    script = (
+        "import sys, time\n"
+        "from service.client import TrackingClient\n"
+        f"c = TrackingClient(connect=[{strict.endpoint!r}])\n"
+        "for k in range(4):\n"
+        f"    c.start(f'flood-{{k}}', {list(clip.box)!r}, preset='bacf')\n"
+        "print('started', flush=True)\n"
+        "time.sleep(60)\n")
+    import subprocess
+    import sys
+
+    station = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE,
+                               text=True)
+    try:
+        assert station.stdout is not None and station.stdout.readline().strip() == "started"
+        with TrackingClient(connect=[strict.endpoint]) as client:
+            with pytest.raises(ServiceError) as full:
+                client.start("legit", clip.box, preset="bacf")
+            assert full.value.code == "limit_exceeded"
+            watch = Watcher(client, "flood-0")
+            station.kill()
+            station.wait(timeout=10)
+            stopped = watch.wait_for("stopped", timeout=15)  # lease + grace
+            assert stopped.code.value == "session_expired" and "station" in stopped.message
+            time.sleep(0.5)
+            assert [s for s in client.status().sessions if s.stream_id.startswith("flood")] == []
+            ack = client.start("legit", clip.box, preset="bacf")
+            client.stop(ack.session_id)
+    finally:
+        station.kill()
+        station.wait(timeout=10)
+
+
+def test_a_station_that_reconnects_within_the_grace_keeps_its_sessions(strict, clip) -> None:
+    with TrackingClient(connect=[strict.endpoint]) as observer:
+        first = TrackingClient(connect=[strict.endpoint], client_id="station-7")
+        ack = first.start("keep", clip.box, preset="bacf")
+        first.close()  # token gone...
+        again = TrackingClient(connect=[strict.endpoint], client_id="station-7")  # ...and back
+        try:
+            time.sleep(1.6)  # past the grace (1 s), before the idle limit (2 s)
+            assert [s.session_id for s in observer.status(stream_id="keep").sessions] == [
+                ack.session_id]
+        finally:
+            again.stop(ack.session_id)
+            again.close()
+
+
+def test_a_box_outside_its_frame_ends_the_session_visibly(strict, clip) -> None:
+    with TrackingClient(connect=[strict.endpoint]) as client:
+        watch = Watcher(client, "outside")
+        client.start("outside", (5000.0, 5000.0, 20.0, 20.0), preset="bacf", frame_seq=0)
+        client.publish_frame("outside", data=clip.frames[0], seq=0)
+        stopped = watch.wait_for("stopped", timeout=10)
+        (error,) = [r for r in watch.results if r.status.value == "error"]
+        assert error.code.value == "invalid_box" and error.frame_seq == 0
+        assert stopped.code.value == "invalid_box" and "does not fit frame 0" in stopped.message
+        assert client.status(stream_id="outside").sessions == []
+
+
+def test_frame_seq_in_the_past_present_and_future(strict, clip) -> None:
+    with TrackingClient(connect=[strict.endpoint]) as client:
+        watch = Watcher(client, "seqs")
+        first = client.start("seqs", clip.box, preset="bacf", frame_seq=0)
+        for i in range(5):
+            client.publish_frame("seqs", data=clip.frames[i], seq=i)
+            time.sleep(0.05)
+        time.sleep(0.5)
+        with pytest.raises(ServiceError) as far:  # beyond max_seq_gap: it may never come
+            client.start("seqs", clip.box, preset="bacf", frame_seq=10**6)
+        assert far.value.code == "invalid_request" and "frame_seq" in str(far.value)
+        later = client.start("seqs", clip.box, preset="bacf", frame_seq=8)  # waits for 8
+        past = client.start("seqs", clip.box, preset="bacf", frame_seq=2)  # drawn on frame 2
+        time.sleep(1.2)  # the workers report once a second
+        states = {s.session_id: s for s in client.status(stream_id="seqs").sessions}
+        assert states[later.session_id].state == "waiting"
+        assert states[first.session_id].state == "tracking"
+        assert states[first.session_id].frames == 5 and states[first.session_id].last_seq == 4
+        for i in range(5, 10):
+            client.publish_frame("seqs", data=clip.frames[i], seq=i)
+            time.sleep(0.05)
+        time.sleep(0.5)
+        mine = {sid: [r for r in watch.results if r.session_id == sid]
+                for sid in (later.session_id, past.session_id)}
+        assert mine[later.session_id][0].frame_seq == 8
+        assert mine[later.session_id][0].status.value == "initialized"
+        assert mine[past.session_id][0].frame_seq == 5
+        assert "box of frame 2 applied to frame 5" in (mine[past.session_id][0].message or "")
+        for sid in (first.session_id, later.session_id, past.session_id):
+            client.stop(sid)
+
+
+def test_a_session_over_its_budget_ends_and_says_so(clip) -> None:
+    svc = ServiceProcess("--session-budget-ms", "0.5")  # every real frame is over this
+    try:
+        with TrackingClient(connect=[svc.endpoint]) as client:
+            watch = Watcher(client, "heavy")
+            client.start("heavy", clip.box, preset="arcf-hc", frame_seq=0)
+            for i in range(10):
+                client.publish_frame("heavy", data=clip.frames[i], seq=i)
+                time.sleep(0.1)
+            stopped = watch.wait_for("stopped", timeout=10)
+            assert stopped.code.value == "limit_exceeded" and "budget" in stopped.message
+            assert 5 <= len([r for r in watch.results if r.status.value != "stopped"]) <= 6
+            assert client.status().sessions == []
+    finally:
+        assert svc.stop() == 0

@@ -408,10 +408,16 @@ def test_limits_stale_frames_and_bombs_are_refused_counted_and_harmless(frames, 
         codes = [decode_error_code(s) for s in errors]
         for code in ("image_too_large", "stale_frame", "rate_limited"):
             assert code in codes, codes
-        # two stale frames and the bomb, then the flood's refusals: each refused frame is one
-        # of those without a result (the others were dropped for the newest, and counted)
-        refused = svc.metric("arcf_errors_total") - 3
-        assert 1 <= refused <= 20 - len(got)
+        # each refusal counted under its code: the refused start, two stale frames, the bomb,
+        # then the flood's excess, each one of the frames without a result (the others were
+        # dropped for the newest, and counted)
+        from service.scrape import fetch, series
+
+        kinds = {labels["kind"]: v for labels, v in
+                 series(fetch(svc.metrics_url)).get("arcf_errors_total", [])}
+        assert kinds["limit_exceeded"] == 1 and kinds["stale_frame"] == 2
+        assert kinds["image_too_large"] == 1
+        assert 1 <= kinds["rate_limited"] <= 20 - len(got)
     finally:
         assert svc.stop() == 0
 
