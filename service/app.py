@@ -50,7 +50,8 @@ class Service:
         self.keys = KeySpace(s.prefix)
         self.session = open_session(s.mode, listen=s.listen if s.mode != "client" else (),
                                     connect=s.connect,
-                                    config_file=s.zenoh_config, lease_ms=s.lease_ms)
+                                    config_file=s.zenoh_config, lease_ms=s.lease_ms,
+                                    max_message_size=s.transport_limit)
         self.http = None
         if s.metrics_port >= 0:
             self.http, _ = start_http_server(s.metrics_port, addr=s.metrics_host,

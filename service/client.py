@@ -99,10 +99,14 @@ class TrackingClient:
         session: zenoh.Session | None = None,
         client_id: str | None = None,
         tie_sessions: bool = True,
+        max_payload: int = 8 * 1024 * 1024,
     ) -> None:
         """``tie_sessions``: declare this station's liveliness token and name it in every
         ``start``, so that the service ends the sessions it started when the station is gone
-        (closed, killed or cut off) for longer than the service's grace period."""
+        (closed, killed or cut off) for longer than the service's grace period.
+        ``max_payload``: the service's limit (its default here); a larger frame is refused
+        before it is sent."""
+        self.max_payload = max_payload
         self.keys = KeySpace(prefix)
         self._own = session is None
         self.session = session if session is not None else open_session(mode, connect=connect)
@@ -146,6 +150,10 @@ class TrackingClient:
             if not ok:
                 raise ValueError("image could not be encoded")
             data = buf.tobytes()
+        if len(data) > self.max_payload:
+            raise ValueError(f"a frame of {len(data)} bytes is above max_payload "
+                             f"({self.max_payload}): the service would refuse it, and a "
+                             "frame far larger may not even cross the link")
         with self._lock:
             if seq is None:
                 seq = self._seq.get(stream_id, -1) + 1

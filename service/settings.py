@@ -121,6 +121,14 @@ class ServiceSettings:
             raise ValueError(f"invalid key-expression prefix {self.prefix!r}")
 
     @property
+    def transport_limit(self) -> int:
+        """The largest message the service's Zenoh sessions reassemble: four times
+        ``max_payload`` (at least 32 MiB), so that every frame a station can deliver up to there
+        arrives and is refused with ``oversized_payload``, counted and reported; beyond it the
+        transport discards the message (bounding the memory a hostile sender can claim)."""
+        return max(4 * self.max_payload, 32 << 20)
+
+    @property
     def worker_endpoints(self) -> tuple[str, ...]:
         """Where workers connect: the embedded router's listen endpoints, else ``connect``."""
         if self.mode == "router":

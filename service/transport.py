@@ -31,11 +31,13 @@ def make_config(
     connect: Sequence[str] = (),
     config_file: Path | None = None,
     lease_ms: int | None = None,
+    max_message_size: int | None = None,
 ) -> zenoh.Config:
     """A Zenoh config: the file (if any), then mode, explicit endpoints and scouting off.
 
     Endpoints are always explicit (a peer's default listens on every interface) and multicast
-    scouting is off, so a service on loopback stays on loopback.
+    scouting is off, so a service on loopback stays on loopback. ``max_message_size`` bounds
+    what this session reassembles from a link (Zenoh's default: 1 GiB per message).
     """
     conf = zenoh.Config.from_file(str(config_file)) if config_file else zenoh.Config()
     conf.insert_json5("mode", json.dumps(mode))
@@ -46,6 +48,8 @@ def make_config(
         conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
     if lease_ms:
         conf.insert_json5("transport/link/tx/lease", str(int(lease_ms)))
+    if max_message_size:
+        conf.insert_json5("transport/link/rx/max_message_size", str(int(max_message_size)))
     return conf
 
 
@@ -55,5 +59,7 @@ def open_session(
     connect: Sequence[str] = (),
     config_file: Path | None = None,
     lease_ms: int | None = None,
+    max_message_size: int | None = None,
 ) -> zenoh.Session:
-    return zenoh.open(make_config(mode, listen, connect, config_file, lease_ms))
+    return zenoh.open(make_config(mode, listen, connect, config_file, lease_ms,
+                                  max_message_size))

@@ -174,7 +174,8 @@ class Worker:
         self.zenoh = zenoh
         _warm_up()  # before the liveliness token: "ready" means no first-frame import stall
         self.session = open_session("client", connect=settings.worker_endpoints,
-                                    config_file=settings.zenoh_config, lease_ms=settings.lease_ms)
+                                    config_file=settings.zenoh_config, lease_ms=settings.lease_ms,
+                                    max_message_size=settings.transport_limit)
         self.token_key = self.keys.worker_token(settings.instance_id, str(index))
         self.token = self.session.liveliness().declare_token(self.token_key)
         # Fencing: if this instance's token vanishes (its main process hung past the Zenoh

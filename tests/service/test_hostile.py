@@ -331,3 +331,32 @@ def test_a_session_over_its_budget_ends_and_says_so(clip) -> None:
             assert client.status().sessions == []
     finally:
         assert svc.stop() == 0
+
+
+def test_oversized_frames_are_refused_where_they_can_be_seen(service, clip) -> None:
+    """Up to the transport's limit (4 x max_payload) an oversized frame reaches the service and
+    is refused and reported; the SDK refuses it before sending; beyond the limit the service's
+    transport discards it without holding it, and nothing else is disturbed."""
+    import os
+
+    import zenoh
+
+    with TrackingClient(connect=[service.endpoint]) as client:
+        victim = Victim(client, clip, "victim-big")
+        try:
+            with pytest.raises(ValueError, match="max_payload"):
+                client.publish_frame("victim-big", data=b"x" * (9 << 20), seq=10**6)
+            before = errors_by_kind(service).get("oversized_payload", 0)
+            t0 = time.monotonic()
+            for mib, seq in ((12, 10**6), (200, 10**6 + 1)):
+                client.session.put(KEYS.frames("victim-big"), encode(Frame(
+                    stream_id="victim-big", seq=seq, capture_ts_ns=1, encoding="jpeg",
+                    payload=os.urandom(mib << 20))),
+                    congestion_control=zenoh.CongestionControl.BLOCK)
+                time.sleep(1.0)
+            assert errors_by_kind(service)["oversized_payload"] == before + 1
+            assert [n.code.value for n in victim.notices] == ["oversized_payload"]
+            victim.notices.clear()
+            victim.check(t0)
+        finally:
+            victim.close()
