@@ -346,13 +346,21 @@ class Worker:
                 self.keys.errors(stream_id), congestion_control=self.zenoh.CongestionControl.DROP)
             stream = self.streams[stream_id] = _Stream(
                 stream_id, sub, inbox, errors, Numbering(s.max_seq_gap, s.resync_frames))
-            self._sync_with_router()
             self.metrics.STREAMS.inc()
         pub = self.session.declare_publisher(
             self.keys.results(stream_id, cmd.session_id),
             congestion_control=self.zenoh.CongestionControl.DROP)
-        s = _Session(cmd.session_id, stream_id, cmd.preset,
-                     create_tracker(cmd.preset, **cmd.overrides), pub,
+        try:
+            # after every declaration (the stream's subscriber, the session's publisher with
+            # Zenoh's writer-side filtering): acked means the first frame and result flow
+            self._sync_with_router()
+            tracker = create_tracker(cmd.preset, **cmd.overrides)
+        except Exception:
+            pub.undeclare()
+            if not stream.sessions:
+                self._drop_stream(stream)
+            raise
+        s = _Session(cmd.session_id, stream_id, cmd.preset, tracker, pub,
                      pending_box=tuple(cmd.box), pending_seq=cmd.frame_seq,
                      pending_status=cmd.status)
         if s.pending_status == "resumed" and s.pending_seq:
@@ -368,9 +376,16 @@ class Worker:
         A subscriber declaration travels to the router asynchronously, and the control plane's
         ack (over a multiprocessing queue) could overtake it: the client would then publish
         the session's first frame before the router knows where to send it. A liveliness query
-        is answered by the router, after everything this session sent before it."""
-        for _ in self.session.liveliness().get(self.token_key, timeout=2.0):
-            pass
+        is answered by the router, after everything this session sent before it. The answer
+        must come: a query that timed out (a stalled machine) proves nothing, so it is asked
+        again, and a start the router never confirms is refused rather than acked."""
+        deadline = time.monotonic() + 10.0
+        while time.monotonic() < deadline:
+            replies = self.session.liveliness().get(self.token_key, timeout=2.0)
+            if any(reply.ok is not None for reply in replies):
+                return
+        raise _CommandRefused(ErrorCode.INTERNAL, "the Zenoh router did not confirm this "
+                              "worker's subscription within 10 s; retry")
 
     def _stop(self, session_id: str) -> None:
         s = self.sessions.pop(session_id, None)
@@ -381,10 +396,13 @@ class Worker:
         stream = self.streams[s.stream_id]
         stream.sessions.pop(session_id, None)
         if not stream.sessions:
-            stream.subscriber.undeclare()
-            stream.errors.undeclare()
-            del self.streams[s.stream_id]
-            self.metrics.STREAMS.dec()
+            self._drop_stream(stream)
+
+    def _drop_stream(self, stream: _Stream) -> None:
+        stream.subscriber.undeclare()
+        stream.errors.undeclare()
+        del self.streams[stream.stream_id]
+        self.metrics.STREAMS.dec()
 
     # ------------------------------------------------------------------ frames
     def _error(self, stream: _Stream, code: ErrorCode, message: str, seq: int | None,
