@@ -94,7 +94,7 @@ class Service:
                 return
             if stream in self.control.tracked_streams():
                 return
-            metrics.ERRORS.labels(kind="no_session").inc()
+            metrics.ERRORS.labels(kind=ErrorCode.NO_SESSION.value).inc()
             now = time.monotonic()
             if now - last_notice.get(stream, 0.0) >= 1.0:
                 last_notice[stream] = now

@@ -1004,3 +1004,14 @@ def test_overrides_of_the_wrong_type_or_range_are_refused_naming_the_range(
     with pytest.raises(InvalidParameterError) as info:
         make_params("arcf-hc", **override)
     assert words in str(info.value)
+
+
+def test_the_readme_lists_every_override_with_what_it_accepts() -> None:
+    import re
+    from pathlib import Path
+
+    from arcf.presets import TUNABLE
+
+    readme = (Path(__file__).parents[2] / "README.md").read_text()
+    rows = dict(re.findall(r"^\| `([a-z_.]+)` \| (.+) \|$", readme, flags=re.M))
+    assert {k: rows.get(k) for k in TUNABLE} == {k: t.describe() for k, t in TUNABLE.items()}
