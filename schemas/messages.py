@@ -56,6 +56,10 @@ __all__ = [
     "ErrorMessage",
     "Frame",
     "Message",
+    "ParameterInfo",
+    "PresetInfo",
+    "Presets",
+    "PresetsRequest",
     "ReinitRequest",
     "Result",
     "ResultBox",
@@ -584,6 +588,42 @@ class Status(Message):
                                 description="Live service instances sharing the streams.")
 
 
+class PresetsRequest(Message):
+    """Ask the service which presets it runs and what each override accepts."""
+
+    type: ClassVar[str] = "presets_request"
+
+    request_id: Id = Field(description="Client-chosen; echoed in the reply.")
+
+
+class ParameterInfo(WireModel):
+    """One override a ``start`` may carry (not a top-level message)."""
+
+    name: OverrideKey
+    kind: Literal["bool", "int", "float", "str"]
+    minimum: float | None = Field(default=None, description="Inclusive lower bound.")
+    maximum: float | None = Field(default=None, description="Inclusive upper bound.")
+    choices: list[StrictStr] | None = Field(default=None, description="The allowed values.")
+
+
+class PresetInfo(WireModel):
+    """One preset and the value of each override in it (not a top-level message)."""
+
+    name: Id
+    values: dict[OverrideKey, OverrideValue]
+
+
+class Presets(Message):
+    """Reply to ``presets_request``: the presets and every override with its declared type and
+    range, as the service enforces them (a value outside is refused, ``invalid_parameter``)."""
+
+    type: ClassVar[str] = "presets"
+
+    request_id: Id
+    presets: list[PresetInfo]
+    parameters: list[ParameterInfo]
+
+
 #: Every top-level message model by wire type, in the order of the design document.
 MESSAGE_TYPES: dict[str, type[Message]] = {
     model.type: model
@@ -593,10 +633,12 @@ MESSAGE_TYPES: dict[str, type[Message]] = {
         ReinitRequest,
         StopRequest,
         StatusRequest,
+        PresetsRequest,
         Ack,
         ErrorMessage,
         Result,
         Status,
+        Presets,
         SessionSpec,
     )
 }

@@ -27,6 +27,8 @@ from schemas import (
     ErrorMessage,
     Frame,
     KeySpace,
+    Presets,
+    PresetsRequest,
     ReinitRequest,
     Result,
     StartRequest,
@@ -178,7 +180,8 @@ class TrackingClient:
         for reply in replies:
             if reply.ok is None:
                 continue
-            message = decode(reply.ok.payload.to_bytes(), expected=(Ack, ErrorMessage, Status))
+            message = decode(reply.ok.payload.to_bytes(),
+                             expected=(Ack, ErrorMessage, Status, Presets))
             if isinstance(message, ErrorMessage):
                 raise ServiceError(message)
             return message
@@ -201,6 +204,10 @@ class TrackingClient:
     def stop(self, session_id: str, timeout: float = 5.0) -> Ack:
         return self._request(StopRequest(request_id=uuid.uuid4().hex, session_id=session_id),
                              timeout)
+
+    def presets(self, timeout: float = 5.0) -> Presets:
+        """The service's presets and what each override accepts."""
+        return self._request(PresetsRequest(request_id=uuid.uuid4().hex), timeout)
 
     def status(self, stream_id: str | None = None, timeout: float = 5.0) -> Status:
         """What the service runs (only ``stream_id``'s sessions, if given)."""

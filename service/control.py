@@ -24,7 +24,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from arcf import ARCFError, make_params
-from arcf.presets import HOST_PARAMETERS, PRESETS
+from arcf.presets import HOST_PARAMETERS, PRESETS, TUNABLE
 from schemas import ErrorCode
 
 from .cluster import Cluster, owner, weight
@@ -305,6 +305,7 @@ class ControlPlane:
         """The encoded reply to a request, or None when another instance owns the answer."""
         from schemas import (
             ErrorMessage,
+            PresetsRequest,
             ReinitRequest,
             SchemaError,
             StartRequest,
@@ -318,14 +319,14 @@ class ControlPlane:
 
         try:
             request = decode(payload, expected=(StartRequest, ReinitRequest, StopRequest,
-                                                StatusRequest))
+                                                StatusRequest, PresetsRequest))
         except SchemaError as exc:
             if not self._mine("payload:" + hashlib.blake2b(payload, digest_size=8).hexdigest()):
                 return None
             metrics.CONTROL.labels(type="invalid", outcome=exc.code.value).inc()
             metrics.ERRORS.labels(kind=exc.code.value).inc()
             return encode(ErrorMessage(code=exc.code.value, message=str(exc)))
-        kind = request.type  # the wire name: start, reinit, stop, status_request
+        kind = request.type  # the wire name: start, reinit, stop, status_request, ...
         if not self._mine(self._responder_key(request)):
             return None
         try:
@@ -346,7 +347,7 @@ class ControlPlane:
         return encode(reply)
 
     def _dispatch(self, request: Any) -> Any:
-        from schemas import ReinitRequest, StartRequest, StopRequest
+        from schemas import PresetsRequest, ReinitRequest, StartRequest, StopRequest
 
         if isinstance(request, StartRequest):
             return self._start(request)
@@ -354,7 +355,26 @@ class ControlPlane:
             return self._reinit(request)
         if isinstance(request, StopRequest):
             return self._stop(request)
+        if isinstance(request, PresetsRequest):
+            return self._presets(request)
         return self._status(request)
+
+    def _presets(self, req: Any) -> Any:
+        """The presets and what each override accepts (``arcf.presets.TUNABLE``): what a
+        request may set, as :meth:`_start` enforces it. Library-only parameters (lists,
+        nested ones, host paths) are left out: a wire override is a scalar."""
+        from schemas import ParameterInfo, PresetInfo, Presets
+
+        kinds = {bool: "bool", int: "int", float: "float", str: "str"}
+        wire = {k: t for k, t in TUNABLE.items() if t.kind in kinds and "." not in k}
+        return Presets(
+            request_id=req.request_id,
+            presets=[PresetInfo(name=p.name, values={k: getattr(p, k) for k in wire})
+                     for p in PRESETS.values()],
+            parameters=[ParameterInfo(name=k, kind=kinds[t.kind], minimum=t.low,
+                                      maximum=t.high,
+                                      choices=list(t.choices) if t.choices else None)
+                        for k, t in wire.items()])
 
     def _responder_key(self, request: Any) -> str:
         """What decides which instance answers: the stream, when the request names one or its

@@ -27,6 +27,10 @@ from schemas import (
     MalformedMessage,
     Message,
     OversizedPayload,
+    ParameterInfo,
+    PresetInfo,
+    Presets,
+    PresetsRequest,
     ReinitRequest,
     Result,
     ResultStatus,
@@ -72,6 +76,14 @@ def samples() -> dict[str, Message]:
         "reinit": ReinitRequest(request_id="req-2", session_id="s1", box=[1, 1, 2.5, 3.5]),
         "stop": StopRequest(request_id="req-3", session_id="s1"),
         "status_request": StatusRequest(request_id="req-4"),
+        "presets_request": PresetsRequest(request_id="req-5"),
+        "presets": Presets(
+            request_id="req-5",
+            presets=[PresetInfo(name="arcf-h", values={"gamma": 0.71, "sampling": "pyramid"})],
+            parameters=[ParameterInfo(name="gamma", kind="float", minimum=0.0, maximum=100.0),
+                        ParameterInfo(name="sampling", kind="str",
+                                      choices=["release", "pyramid"])],
+        ),
         "ack": Ack(request_id="req-1", session_id="s1", stream_id="cam1", message="started"),
         "error": ErrorMessage(
             code=ErrorCode.NO_SESSION, message="no session on cam1", stream_id="cam1", frame_seq=3

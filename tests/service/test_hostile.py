@@ -360,3 +360,28 @@ def test_oversized_frames_are_refused_where_they_can_be_seen(service, clip) -> N
             victim.check(t0)
         finally:
             victim.close()
+
+
+def test_the_service_says_what_each_override_accepts(service, clip) -> None:
+    """The presets reply lists every wire override with its range; each preset's values are
+    inside; a value just outside a bound is refused, one just inside accepted."""
+    with TrackingClient(connect=[service.endpoint]) as client:
+        answer = client.presets()
+        params = {p.name: p for p in answer.parameters}
+        assert {"admm_iterations", "gamma", "sampling", "n_scales"} <= set(params)
+        assert params["admm_iterations"].kind == "int" and params["admm_iterations"].maximum == 20
+        assert params["sampling"].choices == ["release", "pyramid"]
+        assert sorted(p.name for p in answer.presets) == ["arcf-h", "arcf-hc", "bacf"]
+        for preset in answer.presets:
+            for name, value in preset.values.items():
+                p = params[name]
+                assert p.minimum is None or value >= p.minimum
+                assert p.maximum is None or value <= p.maximum
+                assert p.choices is None or value in p.choices
+        limit = int(params["admm_iterations"].maximum)
+        with pytest.raises(ServiceError, match="admm_iterations"):
+            client.start("ranges", clip.box, preset="bacf",
+                         overrides={"admm_iterations": limit + 1})
+        ack = client.start("ranges", clip.box, preset="bacf",
+                           overrides={"admm_iterations": limit})
+        client.stop(ack.session_id)
