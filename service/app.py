@@ -189,6 +189,7 @@ class Service:
                 metrics.mark_dead(p.pid)
         self.responses.put(None)  # ends the control plane's pump thread...
         self.control.pump_thread.join(timeout=5)  # ...before its queue is closed under it
+        self.control.background.shutdown(wait=False, cancel_futures=True)
         for q in [*self.queues, self.responses]:
             q.close()
             q.join_thread()

@@ -20,6 +20,7 @@ import threading
 import time
 import uuid
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any
 
@@ -88,13 +89,19 @@ class ControlPlane:
         self.stats: dict[int, dict[str, SessionStat]] = {}
         #: stations whose liveliness token is up (``client_id`` of ``start``)
         self.live_clients: set[str] = set()
+        #: stations gone, with sessions here: when those sessions end (monotonic s)
+        self.client_deadlines: dict[str, float] = {}
         self.lock = threading.Lock()
+        # Work the pump hands off: ending sessions takes ``op_lock``, which a request may hold
+        # while it waits on the pump for a worker's confirmation.
+        self.background = ThreadPoolExecutor(1, thread_name_prefix="arcf-control-bg")
         # Requests and rebalancing change what runs here; one at a time, or a rebalance could
         # see a session admitted but not yet in the registry and stop it as withdrawn.
         self.op_lock = threading.RLock()
 
     def _pump(self) -> None:
-        """Hand workers' confirmations to the requests waiting for them."""
+        """Hand workers' confirmations to the requests waiting for them. Never blocks on a
+        lock a request may hold (the rest goes to the background thread), never dies."""
         while True:
             try:
                 item = self.responses.get()
@@ -102,16 +109,25 @@ class ControlPlane:
                 return
             if item is None:
                 return
-            if isinstance(item, Fenced):
-                self._fenced(item.worker)
-                continue
-            if isinstance(item, SessionsEnded):
-                self._ended(item)
-                continue
-            if isinstance(item, SessionStats):
-                with self.lock:
-                    self.stats[item.worker] = item.sessions
-                continue
+            try:
+                self._take(item)
+            except Exception:
+                log.exception("control: a worker message could not be handled: %r", item)
+
+    def _take(self, item: Any) -> None:
+        if isinstance(item, Fenced):
+            self._fenced(item.worker)
+        elif isinstance(item, SessionsEnded):
+            self.background.submit(self._ended, item)
+        elif isinstance(item, SessionStats):
+            with self.lock:
+                self.stats[item.worker] = item.sessions
+                due = [c for c, t in self.client_deadlines.items() if t <= time.monotonic()]
+                for client in due:
+                    del self.client_deadlines[client]
+            for client in due:
+                self.background.submit(self._client_gone, client)
+        else:
             with self.lock:
                 waiter = self._waiting.pop(item.reply_id, None)
             if waiter is not None:
@@ -151,16 +167,20 @@ class ControlPlane:
 
     # ------------------------------------------------------------------ stations
     def client_token(self, client_id: str, alive: bool) -> None:
-        """A station's liveliness token appeared or vanished. Its sessions end
-        ``client_grace_s`` after it vanished, unless it came back meanwhile (a reconnect)."""
+        """A station's liveliness token appeared or vanished. Its sessions here end
+        ``client_grace_s`` after it vanished, unless it came back meanwhile (a reconnect
+        cancels the deadline). Only stations with sessions here are remembered, and the
+        deadlines are checked once a second (with the workers' reports), so token churn
+        costs neither threads nor memory."""
         with self.lock:
             if alive:
                 self.live_clients.add(client_id)
+                self.client_deadlines.pop(client_id, None)
                 return
             self.live_clients.discard(client_id)
-        timer = threading.Timer(self.settings.client_grace_s, self._client_gone, (client_id,))
-        timer.daemon = True
-        timer.start()
+            if any(r.client_id == client_id for r in self.sessions.values()):
+                self.client_deadlines[client_id] = (time.monotonic()
+                                                    + self.settings.client_grace_s)
 
     def _client_gone(self, client_id: str) -> None:
         with self.lock:

@@ -64,8 +64,9 @@ class _Session:
     #: monotonic time of its start or last result (``session_idle_s`` counts from here)
     last_activity: float = field(default_factory=time.monotonic)
     last_result_ns: int | None = None
-    #: mean seconds per frame, exponentially weighted (``session_budget_ms``)
+    #: mean CPU seconds per tracked frame, exponentially weighted (``session_budget_ms``)
     cost_s: float = 0.0
+    tracked: int = 0
 
     def stat(self) -> SessionStat:
         return SessionStat(self.frames, self.last_seq, self.last_result_ns,
@@ -345,7 +346,8 @@ class Worker:
             errors = self.session.declare_publisher(
                 self.keys.errors(stream_id), congestion_control=self.zenoh.CongestionControl.DROP)
             stream = self.streams[stream_id] = _Stream(
-                stream_id, sub, inbox, errors, Numbering(s.max_seq_gap, s.resync_frames))
+                stream_id, sub, inbox, errors,
+                Numbering(s.max_seq_gap, s.resync_frames, rate=s.max_stream_fps))
             self.metrics.STREAMS.inc()
         pub = self.session.declare_publisher(
             self.keys.results(stream_id, cmd.session_id),
@@ -406,10 +408,12 @@ class Worker:
 
     # ------------------------------------------------------------------ frames
     def _error(self, stream: _Stream, code: ErrorCode, message: str, seq: int | None,
-               every_s: float = 0.0) -> None:
-        """Count an error and tell the stream; with ``every_s``, at most one notice per that
-        many seconds (a flood of bad frames must not become a flood of notices)."""
-        self.metrics.ERRORS.labels(kind=code.value).inc()
+               every_s: float = 1.0, count: bool = True) -> None:
+        """Count an error and tell the stream, at most one notice per code and ``every_s``
+        seconds (a flood of bad frames must not become a flood of notices; each is counted).
+        ``count=False`` for a notice that is no refusal."""
+        if count:
+            self.metrics.ERRORS.labels(kind=code.value).inc()
         now = time.monotonic()
         if every_s and now - stream.noticed.get(code, -1e9) < every_s:
             return
@@ -445,7 +449,7 @@ class Worker:
                         f"frame says stream {frame.stream_id!r} on {stream.stream_id!r}", frame.seq)
             return
         last = stream.numbering.last
-        verdict, lost = stream.numbering.admit(frame.seq)
+        verdict, lost = stream.numbering.admit(frame.seq, time.monotonic())
         if verdict is Verdict.STALE:
             # duplicate or out of order: tracking it would move the trackers back in time
             self._error(stream, ErrorCode.STALE_FRAME, f"frame {frame.seq} is not after frame "
@@ -460,7 +464,7 @@ class Worker:
         if verdict is Verdict.RESTART:
             self._error(stream, ErrorCode.SEQUENCE_RESTARTED, f"the stream's numbering "
                         f"restarted: frame {frame.seq} follows frame {last}; no frame counted "
-                        "as lost", frame.seq)
+                        "as lost", frame.seq, count=False)
             for s in stream.sessions.values():  # their ``dropped`` counts from here
                 if s.last_seq is not None:
                     s.last_seq = frame.seq - 1
@@ -480,7 +484,7 @@ class Worker:
             status, message, r = "tracking", None, None
             error_code: ErrorCode | None = None
             unusable_box = False
-            t1 = time.perf_counter()
+            t1, c1 = time.perf_counter(), time.thread_time()
             if image is None:
                 status, message = "error", text
                 error_code = code
@@ -507,6 +511,7 @@ class Worker:
             else:
                 continue  # waiting for the frame its box was drawn on
             track_s = time.perf_counter() - t1
+            cpu_s = time.thread_time() - c1
             m.TRACK.observe(track_s)
             s.last_seq = frame.seq
             s.frames += 1
@@ -532,11 +537,14 @@ class Worker:
                 self._end(s, f"session ended: its box does not fit frame {frame.seq} "
                           f"({message})", ErrorCode.INVALID_BOX)
                 continue
-            s.cost_s = track_s if s.frames == 1 else 0.8 * s.cost_s + 0.2 * track_s
+            if r is None:  # nothing tracked: no cost to weigh (junk cannot dilute the mean)
+                continue
+            s.tracked += 1
+            s.cost_s = cpu_s if s.tracked == 1 else 0.8 * s.cost_s + 0.2 * cpu_s
             budget = self.settings.session_budget_ms / 1e3
-            if s.frames >= 5 and s.cost_s > budget:
-                self._end(s, f"session ended: its frames take {1e3 * s.cost_s:.0f} ms, "
-                          f"above the {1e3 * budget:g} ms budget of a session "
+            if (s.tracked >= 5 and s.cost_s > budget) or cpu_s > 4 * budget:
+                self._end(s, f"session ended: its frames take {1e3 * max(s.cost_s, cpu_s):.0f} "
+                          f"ms of CPU, above the {1e3 * budget:g} ms budget of a session "
                           "(session_budget_ms); other streams share its worker",
                           ErrorCode.LIMIT_EXCEEDED)
 
@@ -550,10 +558,13 @@ class Worker:
             # cleared before draining: anything arriving from now on wakes the next round
             self.wake.wait(timeout=0.5)
             self.wake.clear()
-            if self.fenced.is_set():
-                self._fence()
             worked = True
-            while worked:  # one frame per stream per round, commands in between: fair shares
+            # one frame per stream per round, commands in between: fair shares. The fence, the
+            # stop and the once-a-second housekeeping are checked every round, so that a
+            # worker that never runs out of frames still does them
+            while worked and not self.stop.is_set():
+                if self.fenced.is_set():
+                    self._fence()
                 while self.pending:
                     t0 = time.perf_counter()
                     cmd = self.pending.popleft()
@@ -580,12 +591,12 @@ class Worker:
                     if spent > 0.5:
                         log.warning("worker %d: a frame of stream %s took %.0f ms", self.index,
                                     stream.stream_id, 1e3 * spent)
-            now = time.monotonic()
-            if now - t_window >= 1.0:
-                self.busy.set(busy_s / (now - t_window))
-                self.memory.set(self.metrics.resident_bytes())
-                busy_s, t_window = 0.0, now
-                self._housekeeping()
+                now = time.monotonic()
+                if now - t_window >= 1.0:
+                    self.busy.set(busy_s / (now - t_window))
+                    self.memory.set(self.metrics.resident_bytes())
+                    busy_s, t_window = 0.0, now
+                    self._housekeeping()
         if self.stop.is_set():
             self._drain()
 

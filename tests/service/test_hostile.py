@@ -327,7 +327,8 @@ def test_a_session_over_its_budget_ends_and_says_so(clip) -> None:
                 time.sleep(0.1)
             stopped = watch.wait_for("stopped", timeout=10)
             assert stopped.code.value == "limit_exceeded" and "budget" in stopped.message
-            assert 5 <= len([r for r in watch.results if r.status.value != "stopped"]) <= 6
+            # a frame over 4x the budget ends it at once; a mean over it after 5 frames
+            assert 1 <= len([r for r in watch.results if r.status.value != "stopped"]) <= 6
             assert client.status().sessions == []
     finally:
         assert svc.stop() == 0

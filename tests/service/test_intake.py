@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from service.intake import Numbering, TokenBucket, Verdict
+from service.intake import Numbering, TokenBucket
 
 
 def test_the_rate_limit_allows_a_second_of_burst_then_the_rate() -> None:
@@ -19,33 +19,49 @@ def test_the_rate_limit_allows_a_second_of_burst_then_the_rate() -> None:
     assert sum(took[100:]) == pytest.approx(50, abs=1)  # then 10 fps: every other frame
 
 
-def _feed(numbering: Numbering, seqs: list[int]) -> list[tuple[str, int]]:
-    return [(v.value, lost) for v, lost in map(numbering.admit, seqs)]
+def _feed(numbering: Numbering, seqs: list[int], dt: float = 1.0) -> list[tuple[str, int]]:
+    """Feed frames ``dt`` s apart (a whole second by default: every gap up to 90 plausible)."""
+    out = []
+    for seq in seqs:
+        numbering.clock += dt
+        verdict, lost = numbering.admit(seq, numbering.clock)
+        out.append((verdict.value, lost))
+    return out
+
+
+class _Clocked(Numbering):
+    clock: float = 0.0
 
 
 def test_gaps_within_the_bound_are_frames_lost() -> None:
-    n = Numbering(max_gap=100, confirm=3)
-    assert _feed(n, [5, 6, 9, 109]) == [("first", 0), ("next", 0), ("next", 2), ("next", 99)]
+    n = _Clocked(max_gap=100, confirm=3)
+    assert _feed(n, [5, 6, 9, 109], dt=2.0) == [
+        ("first", 0), ("next", 0), ("next", 2), ("next", 99)]
+    # but only as many as the stream's rate could have sent since: 60/s here, plus 30
+    fast = _Clocked(max_gap=900, confirm=3)
+    assert _feed(fast, [0, 1, 899], dt=0.033) == [("first", 0), ("next", 0), ("jump", 0)]
+    assert _feed(fast, [2, 40], dt=0.033) == [("next", 0), ("jump", 0)]
+    assert _feed(fast, [500], dt=8.0) == [("next", 497)]  # 8 s of loss: plausible
 
 
 def test_one_rogue_frame_cannot_lock_a_stream_out() -> None:
-    n = Numbering(max_gap=100, confirm=3)
+    n = _Clocked(max_gap=100, confirm=3)
     assert _feed(n, [0, 1, 10**12, 2, 3]) == [
         ("first", 0), ("next", 0), ("jump", 0), ("next", 0), ("next", 0)]
     assert _feed(n, [1, 4]) == [("stale", 0), ("next", 0)]  # a replayed old frame
-    assert n.last == 4 and n.run == []
+    assert n.last == 4 and n.runs == []
 
 
 def test_rogue_frames_interleaved_with_the_real_stream_never_win() -> None:
-    n = Numbering(max_gap=100, confirm=3)
-    n.admit(0)
+    n = _Clocked(max_gap=100, confirm=3)
+    _feed(n, [0])
     for k in range(1, 50):  # an attacker's frame between every genuine one
-        assert n.admit(10**9 + k)[0] is Verdict.JUMP
-        assert n.admit(k) == (Verdict.NEXT, 0)
+        assert _feed(n, [10**9 + 7 * k]) == [("jump", 0)]
+        assert _feed(n, [k]) == [("next", 0)]
 
 
 def test_a_restarted_numbering_is_followed_after_confirmation() -> None:
-    n = Numbering(max_gap=100, confirm=3)
+    n = _Clocked(max_gap=100, confirm=3)
     _feed(n, [500, 501])
     # the camera reboots and counts from 0 again: two frames refused, then followed
     assert _feed(n, [0, 1, 2, 3]) == [("stale", 0), ("stale", 0), ("restart", 0), ("next", 0)]
@@ -55,7 +71,28 @@ def test_a_restarted_numbering_is_followed_after_confirmation() -> None:
 
 
 def test_duplicates_never_confirm_a_restart() -> None:
-    n = Numbering(max_gap=100, confirm=3)
+    n = _Clocked(max_gap=100, confirm=3)
     _feed(n, [10, 11])
     assert _feed(n, [3, 3, 3, 3]) == [("stale", 0)] * 4
     assert _feed(n, [12]) == [("next", 0)]
+
+
+def test_a_trickle_of_foreign_numbers_cannot_keep_a_station_out() -> None:
+    """An attacker takes the numbering over with three frames, then puts one frame of yet
+    another numbering after every two of the station's: the station's own run is kept apart
+    and wins the numbering back after three frames."""
+    n = _Clocked(max_gap=100, confirm=3)
+    _feed(n, [0, 1, 2])
+    assert _feed(n, [10**12, 10**12 + 1, 10**12 + 2])[-1] == ("restart", 0)
+    verdicts = []
+    for k in range(3, 60, 2):
+        verdicts += _feed(n, [k, k + 1, 10**15 + 1000 * k], dt=0.05)
+    genuine = [v for i, v in enumerate(verdicts) if i % 3 != 2]
+    assert genuine[:3] == [("stale", 0), ("stale", 0), ("restart", 0)]
+    assert all(v == ("next", 0) for v in genuine[3:])
+
+
+def test_a_far_frame_right_after_a_genuine_one_counts_no_losses() -> None:
+    n = _Clocked(max_gap=900, confirm=3)
+    _feed(n, [0], dt=0.0)
+    assert _feed(n, [899, 1, 2], dt=0.033) == [("jump", 0), ("next", 0), ("next", 0)]

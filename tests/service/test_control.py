@@ -1,0 +1,80 @@
+"""The control plane against fake workers (in-process queues, no Zenoh): it stays responsive
+whatever the workers report, and stations that vanish cost neither threads nor memory."""
+
+from __future__ import annotations
+
+import queue
+import threading
+import time
+from typing import Any
+
+from schemas import StartRequest, decode, encode
+from service.commands import Confirmation, SessionsEnded, SessionStats, StartSession
+from service.control import ControlPlane
+from service.settings import ServiceSettings
+
+
+class FakeWorker:
+    """Confirms every command; before confirming the ``end_first``-th start, reports a session
+    it ended by itself (as a worker does when a box does not fit its frame)."""
+
+    def __init__(self, commands: queue.Queue, responses: queue.Queue, end_first: int) -> None:
+        self.commands, self.responses, self.end_first = commands, responses, end_first
+        self.starts = 0
+        threading.Thread(target=self.run, daemon=True).start()
+
+    def run(self) -> None:
+        while True:
+            cmd = self.commands.get()
+            if isinstance(cmd, StartSession):
+                self.starts += 1
+                if self.starts == self.end_first:
+                    self.responses.put(SessionsEnded(0, ("ended-by-worker",), "box"))
+            self.responses.put(Confirmation(cmd.reply_id or "", True))
+
+
+def _plane(**settings: Any) -> tuple[ControlPlane, FakeWorker]:
+    commands: queue.Queue = queue.Queue()
+    responses: queue.Queue = queue.Queue()
+    plane = ControlPlane(ServiceSettings(workers=1, **settings), [commands], "test",
+                         responses=responses, timeout=2.0)
+    return plane, FakeWorker(commands, responses, end_first=2)
+
+
+def _start(plane: ControlPlane, stream: str, **fields: Any) -> Any:
+    reply = plane.handle(encode(StartRequest(request_id=f"r-{stream}", stream_id=stream,
+                                             box=[1, 1, 5, 5], preset="bacf", **fields)))
+    assert reply is not None
+    return decode(reply)
+
+
+def test_a_session_ended_by_a_worker_does_not_stall_requests() -> None:
+    plane, _ = _plane()
+    _start(plane, "a")
+    with plane.op_lock:  # a request in progress holds this while the pump delivers
+        t0 = time.monotonic()
+        reply = _start(plane, "b")  # its worker reports an ended session first
+        assert time.monotonic() - t0 < 1.0
+    assert reply.type == "ack", reply
+
+
+def test_vanished_stations_cost_no_thread_and_no_memory() -> None:
+    plane, _ = _plane(client_grace_s=0.2)
+    threads = threading.active_count()
+    for k in range(500):  # token churn of stations that hold no session here
+        plane.client_token(f"st-{k}", True)
+        plane.client_token(f"st-{k}", False)
+    assert threading.active_count() <= threads + 1
+    assert plane.live_clients == set() and plane.client_deadlines == {}
+    ack = _start(plane, "kept", client_id="owner")
+    plane.client_token("owner", True)
+    plane.client_token("owner", False)
+    plane.client_token("owner", True)  # back within the grace: nothing ends
+    assert plane.client_deadlines == {}
+    plane.client_token("owner", False)
+    time.sleep(0.3)
+    plane.responses.put(SessionStats(0, {}))  # the once-a-second reports check deadlines
+    deadline = time.monotonic() + 3
+    while ack.session_id in plane.sessions and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert ack.session_id not in plane.sessions
