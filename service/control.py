@@ -147,6 +147,8 @@ class ControlPlane:
         if not event.wait(self.timeout):
             with self.lock:
                 self._waiting.pop(cid, None)
+            if isinstance(cmd, StartSession):  # it may still start: make sure it does not stay
+                self.queues[worker].put(StopSession(cmd.session_id))
             raise _Refused(ErrorCode.INTERNAL,
                            f"worker {worker} did not confirm within {self.timeout} s")
         if not slot[0]:

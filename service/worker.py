@@ -307,7 +307,10 @@ class Worker:
             self._start(cmd)
         elif isinstance(cmd, ReinitSession):
             s = self.sessions.get(cmd.session_id)
-            if s is not None:
+            if s is None:  # ended by the worker meanwhile (idle, box, budget)
+                raise _CommandRefused(ErrorCode.UNKNOWN_SESSION,
+                                      f"session {cmd.session_id!r} has ended")
+            else:
                 self._check_frame_seq(self.streams[s.stream_id], cmd.frame_seq)
                 s.pending_box, s.pending_seq = tuple(cmd.box), cmd.frame_seq
                 s.pending_status = "reinitialized"
@@ -334,6 +337,9 @@ class Worker:
                                   f"last frame {last}")
 
     def _start(self, cmd: StartSession) -> None:
+        if cmd.session_id in self.sessions:
+            raise _CommandRefused(ErrorCode.INVALID_REQUEST,
+                                  f"session {cmd.session_id!r} already runs here")
         stream_id = cmd.stream_id
         stream = self.streams.get(stream_id)
         if cmd.status != "resumed":
@@ -381,13 +387,14 @@ class Worker:
         is answered by the router, after everything this session sent before it. The answer
         must come: a query that timed out (a stalled machine) proves nothing, so it is asked
         again, and a start the router never confirms is refused rather than acked."""
-        deadline = time.monotonic() + 10.0
+        # well inside the control plane's wait (10 s): a start it gave up on must not start
+        deadline = time.monotonic() + 5.0
         while time.monotonic() < deadline:
-            replies = self.session.liveliness().get(self.token_key, timeout=2.0)
+            replies = self.session.liveliness().get(self.token_key, timeout=1.0)
             if any(reply.ok is not None for reply in replies):
                 return
         raise _CommandRefused(ErrorCode.INTERNAL, "the Zenoh router did not confirm this "
-                              "worker's subscription within 10 s; retry")
+                              "worker's subscription within 5 s; retry")
 
     def _stop(self, session_id: str) -> None:
         s = self.sessions.pop(session_id, None)
