@@ -17,6 +17,7 @@ import signal
 import sys
 import threading
 import time
+from collections import OrderedDict
 from typing import Any
 
 from . import __version__, multiproc
@@ -84,8 +85,9 @@ class Service:
             self.keys.all_client_tokens(), client_token, history=True)
         # Frames of streams nobody tracks: counted, and answered with a rate-limited error.
         # The callback only reads the key; it never touches the payload.
-        last_notice: dict[str, float] = {}
-        errors_pub: dict[str, Any] = {}
+        # when each untracked stream was last told; bounded, so that frames on endless
+        # made-up stream ids cannot grow it (the oldest entries go first)
+        last_notice: OrderedDict[str, float] = OrderedDict()
 
         def untracked(sample: Any) -> None:
             try:
@@ -98,12 +100,13 @@ class Service:
             now = time.monotonic()
             if now - last_notice.get(stream, 0.0) >= 1.0:
                 last_notice[stream] = now
-                pub = errors_pub.get(stream)
-                if pub is None:
-                    pub = errors_pub[stream] = self.session.declare_publisher(
-                        self.keys.errors(stream), congestion_control=zenoh.CongestionControl.DROP)
-                pub.put(encode(ErrorMessage(code=ErrorCode.NO_SESSION, stream_id=stream,
-                                            message=f"no tracking session on stream {stream!r}")))
+                last_notice.move_to_end(stream)
+                while len(last_notice) > 4096:
+                    last_notice.popitem(last=False)
+                self.session.put(self.keys.errors(stream), encode(ErrorMessage(
+                    code=ErrorCode.NO_SESSION, stream_id=stream,
+                    message=f"no tracking session on stream {stream!r}")),
+                    congestion_control=zenoh.CongestionControl.DROP)
 
         # Only for the embedded router: in a multi-instance deployment every instance would
         # receive every frame just to count the untracked ones.

@@ -267,6 +267,7 @@ class ControlPlane:
                 except _Refused as exc:
                     with self.lock:
                         self.sessions.pop(sid, None)
+                    metrics.ERRORS.labels(kind=exc.code.value).inc()  # seen, not only logged
                     log.error("could not take over session %s: %s", sid, exc.message)
                     continue
                 metrics.TAKEOVERS.inc()

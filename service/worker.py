@@ -92,27 +92,36 @@ class _Inbox:
     ``deque.append``/``popleft`` are atomic, and a full deque drops its oldest entry, which is
     the drop-oldest policy a live video stream wants."""
 
-    def __init__(self, key: str, maxlen: int, rate: float, wake: threading.Event,
-                 metrics: Any) -> None:
+    def __init__(self, key: str, maxlen: int, rate: float, max_payload: int,
+                 wake: threading.Event, metrics: Any) -> None:
         self.key = key
         self.frames: deque[tuple[bytes, int]] = deque(maxlen=maxlen)
         self.bucket = TokenBucket(rate)
+        self.max_payload = max_payload
         self.wake = wake
         self.metrics = metrics
-        #: frames refused by the rate limit so far (the loop reports them)
-        self.rate_limited = 0
+        #: frames refused here so far, by code (the loop reports them to the stream)
+        self.refused: dict[ErrorCode, int] = {ErrorCode.RATE_LIMITED: 0,
+                                              ErrorCode.OVERSIZED_PAYLOAD: 0}
 
     def __call__(self, sample: Any) -> None:
         if str(sample.key_expr) != self.key:
             self.metrics.ERRORS.labels(kind=ErrorCode.INVALID_KEY.value).inc()
             return
         self.metrics.FRAMES_RECEIVED.inc()
-        if not self.bucket.take(time.monotonic()):
-            self.metrics.ERRORS.labels(kind=ErrorCode.RATE_LIMITED.value).inc()
-            self.rate_limited += 1
+        # the size first, without copying: an oversized message never takes a place in the
+        # queue, nor memory (a frame message is its payload plus a few dozen bytes)
+        if len(sample.payload) > self.max_payload + 1024:
+            self._refuse(ErrorCode.OVERSIZED_PAYLOAD)
+        elif not self.bucket.take(time.monotonic()):
+            self._refuse(ErrorCode.RATE_LIMITED)
+        else:
+            self.frames.append((sample.payload.to_bytes(), time.time_ns()))
             self.wake.set()
-            return
-        self.frames.append((sample.payload.to_bytes(), time.time_ns()))
+
+    def _refuse(self, code: ErrorCode) -> None:
+        self.metrics.ERRORS.labels(kind=code.value).inc()
+        self.refused[code] += 1
         self.wake.set()
 
     def pop(self) -> tuple[bytes, int] | None:
@@ -132,8 +141,8 @@ class _Stream:
     sessions: dict[str, _Session] = field(default_factory=dict)
     #: when each kind of error notice was last put on the stream's error key
     noticed: dict[ErrorCode, float] = field(default_factory=dict)
-    #: rate-limited frames already reported
-    rate_reported: int = 0
+    #: frames refused at intake already reported, by code
+    reported: dict[ErrorCode, int] = field(default_factory=dict)
 
 
 def _warm_up() -> None:
@@ -347,7 +356,7 @@ class Worker:
         if stream is None:
             s = self.settings
             inbox = _Inbox(self.keys.frames(stream_id), s.frame_queue, s.max_stream_fps,
-                           self.wake, self.metrics)
+                           s.max_payload, self.wake, self.metrics)
             sub = self.session.declare_subscriber(self.keys.frames(stream_id), inbox)
             errors = self.session.declare_publisher(
                 self.keys.errors(stream_id), congestion_control=self.zenoh.CongestionControl.DROP)
@@ -429,20 +438,24 @@ class Worker:
                                               stream_id=stream.stream_id, frame_seq=seq)))
 
     def _report_intake(self, stream: _Stream) -> None:
-        """Tell a stream about frames its inbox refused for the rate (throttled notice; each
+        """Tell a stream about frames its inbox refused (a throttled notice per code; each
         refused frame was counted at intake)."""
-        refused = stream.inbox.rate_limited - stream.rate_reported
-        if refused <= 0:
-            return
-        now = time.monotonic()
-        if now - stream.noticed.get(ErrorCode.RATE_LIMITED, -1e9) < 1.0:
-            return
-        stream.noticed[ErrorCode.RATE_LIMITED] = now
-        stream.rate_reported += refused
-        stream.errors.put(encode(ErrorMessage(
-            code=ErrorCode.RATE_LIMITED, stream_id=stream.stream_id,
-            message=f"stream {stream.stream_id!r} exceeds {self.settings.max_stream_fps:g} "
-                    f"frames/s; {refused} frame(s) refused since the last notice")))
+        why = {ErrorCode.RATE_LIMITED: f"stream {stream.stream_id!r} exceeds "
+                                       f"{self.settings.max_stream_fps:g} frames/s",
+               ErrorCode.OVERSIZED_PAYLOAD: f"frame messages above max_payload "
+                                            f"({self.settings.max_payload} bytes)"}
+        for code, total in list(stream.inbox.refused.items()):
+            refused = total - stream.reported.get(code, 0)
+            if refused <= 0:
+                continue
+            now = time.monotonic()
+            if now - stream.noticed.get(code, -1e9) < 1.0:
+                continue
+            stream.noticed[code] = now
+            stream.reported[code] = total
+            stream.errors.put(encode(ErrorMessage(
+                code=code, stream_id=stream.stream_id,
+                message=f"{why[code]}: {refused} frame(s) refused since the last notice")))
 
     def _process(self, stream: _Stream, payload: bytes, received_ns: int) -> None:
         m = self.metrics
