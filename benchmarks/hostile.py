@@ -38,14 +38,13 @@ from loadtools.procs import ServiceProcess
 from loadtools.system import machine
 from schemas import Frame, KeySpace, encode
 from service.client import ServiceError, TrackingClient
-from service.scrape import delta, fetch, scrape, series
+from service.scrape import by_label, delta, fetch, scrape
 
 KEYS = KeySpace()
 
 
 def errors_by_kind(url: str) -> dict[str, float]:
-    return {labels["kind"]: value for labels, value in series(fetch(url)).get(
-        "arcf_errors_total", [])}
+    return by_label(fetch(url), "arcf_errors_total", "kind")
 
 
 def repeat(every_s: float, action: Callable[[int], None], stop: threading.Event) -> None:

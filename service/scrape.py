@@ -35,6 +35,14 @@ def totals(text: str) -> dict[str, float]:
     return {name: sum(v for _, v in values) for name, values in series(text).items()}
 
 
+def by_label(text: str, name: str, label: str) -> dict[str, float]:
+    """One metric's value per value of one label, e.g. ``arcf_errors_total`` by ``kind``."""
+    out: dict[str, float] = defaultdict(float)
+    for labels, value in series(text).get(name, []):
+        out[labels.get(label, "")] += value
+    return dict(out)
+
+
 def scrape(url: str | None, timeout: float = 5.0) -> dict[str, float]:
     """``totals`` of the endpoint at ``url``; ``{}`` when there is no URL."""
     return totals(fetch(url, timeout)) if url else {}

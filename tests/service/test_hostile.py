@@ -23,7 +23,7 @@ from loadtools.driver import Clip, Fleet, Pacing
 from loadtools.procs import ServiceProcess
 from schemas import ErrorMessage, Frame, KeySpace, decode, encode
 from service.client import ServiceError, TrackingClient
-from service.scrape import fetch, series
+from service.scrape import by_label, fetch
 
 pytestmark = [pytest.mark.integration,
               pytest.mark.skipif(not (data_root() / "uav123_10fps").is_dir(),
@@ -47,8 +47,7 @@ def clip() -> Clip:
 
 def errors_by_kind(svc: ServiceProcess) -> dict[str, float]:
     assert svc.metrics_url is not None
-    return {labels["kind"]: value
-            for labels, value in series(fetch(svc.metrics_url)).get("arcf_errors_total", [])}
+    return by_label(fetch(svc.metrics_url), "arcf_errors_total", "kind")
 
 
 class Victim:

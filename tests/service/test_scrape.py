@@ -85,3 +85,15 @@ def test_health_check_needs_a_live_worker(server: tuple[str, dict[str, str]]) ->
 def test_health_check_reports_an_unreachable_endpoint() -> None:
     ok, message = check("http://127.0.0.1:9/metrics", timeout=1.0)
     assert not ok and "unreachable" in message
+
+
+def test_one_metric_by_one_label() -> None:
+    from service.scrape import by_label
+
+    text = ('# TYPE arcf_errors_total counter\n'
+            'arcf_errors_total{kind="rate_limited",worker="0"} 3.0\n'
+            'arcf_errors_total{kind="rate_limited",worker="1"} 2.0\n'
+            'arcf_errors_total{kind="invalid_key",worker="0"} 1.0\n')
+    assert by_label(text, "arcf_errors_total", "kind") == {"rate_limited": 5.0,
+                                                            "invalid_key": 1.0}
+    assert by_label(text, "arcf_frames_total", "kind") == {}

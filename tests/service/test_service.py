@@ -411,10 +411,9 @@ def test_limits_stale_frames_and_bombs_are_refused_counted_and_harmless(frames, 
         # each refusal counted under its code: the refused start, two stale frames, the bomb,
         # then the flood's excess, each one of the frames without a result (the others were
         # dropped for the newest, and counted)
-        from service.scrape import fetch, series
+        from service.scrape import by_label, fetch
 
-        kinds = {labels["kind"]: v for labels, v in
-                 series(fetch(svc.metrics_url)).get("arcf_errors_total", [])}
+        kinds = by_label(fetch(svc.metrics_url), "arcf_errors_total", "kind")
         assert kinds["limit_exceeded"] == 1 and kinds["stale_frame"] == 2
         assert kinds["image_too_large"] == 1
         assert 1 <= kinds["rate_limited"] <= 20 - len(got)
