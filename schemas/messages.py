@@ -442,6 +442,12 @@ class ReinitRequest(Message):
     frame_seq: NonNegInt | None = Field(
         default=None, description="Frame the box was drawn on; absent = the next frame."
     )
+    client_id: Id | None = Field(
+        default=None,
+        description="The station now holding the session (a restarted station adopting the "
+        "sessions it left behind, under its new liveliness token): from now on the session "
+        "ends when this token is gone longer than the grace period. Absent: unchanged.",
+    )
 
 
 class StopRequest(Message):

@@ -197,9 +197,16 @@ class TrackingClient:
             client_id=self.client_id if self._token is not None else None), timeout)
 
     def reinit(self, session_id: str, box: Sequence[float], *, frame_seq: int | None = None,
-               timeout: float = 5.0) -> Ack:
-        return self._request(ReinitRequest(request_id=uuid.uuid4().hex, session_id=session_id,
-                                           box=list(box), frame_seq=frame_seq), timeout)
+               adopt: bool = False, timeout: float = 5.0) -> Ack:
+        """``adopt``: this station takes the session over, so that its lifetime follows this
+        client's liveliness token from now on (a restarted station adopting the sessions its
+        previous run left behind, found with :meth:`status`). A station with a stable
+        ``client_id`` needs no adoption: its sessions are already its own."""
+        if adopt and self._token is None:
+            raise ValueError("adopt needs a client that ties its sessions (tie_sessions=True)")
+        return self._request(ReinitRequest(
+            request_id=uuid.uuid4().hex, session_id=session_id, box=list(box),
+            frame_seq=frame_seq, client_id=self.client_id if adopt else None), timeout)
 
     def stop(self, session_id: str, timeout: float = 5.0) -> Ack:
         return self._request(StopRequest(request_id=uuid.uuid4().hex, session_id=session_id),

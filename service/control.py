@@ -184,6 +184,16 @@ class ControlPlane:
                 self.client_deadlines[client_id] = (time.monotonic()
                                                     + self.settings.client_grace_s)
 
+    def _adopt(self, rec: SessionRecord, client_id: str) -> None:
+        """A station (a restarted one, under a new liveliness token) takes a session over: its
+        lifetime follows the new token from now on, the old one's deadline no longer
+        concerns it. A token not seen yet gets the grace to appear."""
+        with self.lock:
+            rec.client_id = client_id
+            if client_id not in self.live_clients:
+                self.client_deadlines.setdefault(
+                    client_id, time.monotonic() + self.settings.client_grace_s)
+
     def _client_gone(self, client_id: str) -> None:
         with self.lock:
             if client_id in self.live_clients:
@@ -314,6 +324,10 @@ class ControlPlane:
                 w = place(stream_id, load)
             self.sessions[sid] = SessionRecord(sid, stream_id, preset, w, time.time(),
                                                client_id)
+            if client_id is not None and client_id not in self.live_clients:
+                # a token named but not seen (yet): it has the grace to appear
+                self.client_deadlines.setdefault(
+                    client_id, time.monotonic() + self.settings.client_grace_s)
         return w
 
     # ------------------------------------------------------------------ queries
@@ -463,10 +477,14 @@ class ControlPlane:
 
         rec = self._record(req.session_id)
         self._forward(rec.worker, ReinitSession(rec.session_id, tuple(req.box), req.frame_seq))
+        update: dict[str, Any] = {"box": req.box, "frame_seq": req.frame_seq}
+        if req.client_id is not None and req.client_id != rec.client_id:
+            self._adopt(rec, req.client_id)
+            update["client_id"] = req.client_id
         if self.cluster is not None and (spec := self.cluster.spec(rec.session_id)) is not None:
-            # a takeover before the next result starts from the new box, not the old one
-            self.cluster.publish(spec.model_copy(update={"box": req.box,
-                                                         "frame_seq": req.frame_seq}))
+            # a takeover before the next result starts from the new box (and station), not
+            # the old one
+            self.cluster.publish(spec.model_copy(update=update))
         return Ack(request_id=req.request_id, session_id=rec.session_id,
                    stream_id=rec.stream_id, message="re-initialisation queued")
 

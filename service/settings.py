@@ -43,6 +43,10 @@ class ServiceSettings:
                                     metadata=_about("Zenoh listen endpoint (repeatable)"))
     connect: tuple[str, ...] = field(default=(),
                                      metadata=_about("Zenoh connect endpoint (repeatable)"))
+    worker_connect: tuple[str, ...] = field(default=(), metadata=_about(
+        "where the worker processes connect (repeatable; default: the embedded router's "
+        "listen endpoint, else --connect), e.g. a unix-socket endpoint the router also "
+        "listens on"))
     zenoh_config: Path | None = field(default=None, metadata=_about(
         "a Zenoh JSON5 config file applied before the settings above", kind=Path))
     workers: int = field(default_factory=lambda: os.cpu_count() or 1,
@@ -130,7 +134,10 @@ class ServiceSettings:
 
     @property
     def worker_endpoints(self) -> tuple[str, ...]:
-        """Where workers connect: the embedded router's listen endpoints, else ``connect``."""
+        """Where workers connect: ``worker_connect``, else the embedded router's listen
+        endpoints, else ``connect``."""
+        if self.worker_connect:
+            return self.worker_connect
         if self.mode == "router":
             return tuple(e.replace("0.0.0.0", "127.0.0.1") for e in self.listen)
         return self.connect or self.listen

@@ -392,18 +392,20 @@ class Worker:
 
         A subscriber declaration travels to the router asynchronously, and the control plane's
         ack (over a multiprocessing queue) could overtake it: the client would then publish
-        the session's first frame before the router knows where to send it. A liveliness query
-        is answered by the router, after everything this session sent before it. The answer
-        must come: a query that timed out (a stalled machine) proves nothing, so it is asked
-        again, and a start the router never confirms is refused rather than acked."""
+        the session's first frame before the router knows where to send it (it would be lost;
+        ``tests/service/test_start_order.py`` delays this worker's link to show it). A
+        liveliness query is answered by the router after everything this session sent before
+        it, so its end proves the declarations arrived: not its first reply, which this
+        worker's own session gives at once for its own token, but its end, which is the
+        router's final answer (a query that times out ends with an error reply instead). It
+        must come: a start the router does not confirm is refused rather than acked. One query
+        with the whole budget, so that a slow link (or a stalled machine) delays the ack
+        instead of failing it."""
         # well inside the control plane's wait (10 s): a start it gave up on must not start
-        deadline = time.monotonic() + 5.0
-        while time.monotonic() < deadline:
-            replies = self.session.liveliness().get(self.token_key, timeout=1.0)
-            if any(reply.ok is not None for reply in replies):
-                return
-        raise _CommandRefused(ErrorCode.INTERNAL, "the Zenoh router did not confirm this "
-                              "worker's subscription within 5 s; retry")
+        replies = list(self.session.liveliness().get(self.token_key, timeout=5.0))
+        if any(reply.err is not None for reply in replies):
+            raise _CommandRefused(ErrorCode.INTERNAL, "the Zenoh router did not confirm this "
+                                  "worker's subscription within 5 s; retry")
 
     def _stop(self, session_id: str) -> None:
         s = self.sessions.pop(session_id, None)

@@ -203,6 +203,22 @@ class Watcher:
                              f"{[(r.frame_seq, r.status.value) for r in self.results]}")
 
 
+class Frames:
+    """Frames of one stream, published at 10 fps by a client that is not the station: the
+    stream stays busy (no session idles out) whatever happens to the station."""
+
+    def __init__(self, client: TrackingClient, clip: Clip, stream: str) -> None:
+        self.client, self.clip, self.stream, self.seq = client, clip, stream, 0
+
+    def run(self, seconds: float, until: Any = None) -> None:
+        deadline = time.monotonic() + seconds
+        while time.monotonic() < deadline and not (until and until()):
+            self.client.publish_frame(self.stream, seq=self.seq,
+                                      data=self.clip.frames[self.seq % len(self.clip)])
+            self.seq += 1
+            time.sleep(0.1)
+
+
 def test_a_quiet_stream_ends_its_sessions_saying_why(strict, clip) -> None:
     with TrackingClient(connect=[strict.endpoint]) as client:
         watch = Watcher(client, "quiet")
@@ -242,10 +258,13 @@ def test_sessions_of_a_vanished_station_end_and_free_their_places(strict, clip) 
             with pytest.raises(ServiceError) as full:
                 client.start("legit", clip.box, preset="bacf")
             assert full.value.code == "limit_exceeded"
-            watch = Watcher(client, "flood-0")
+            watch, frames = Watcher(client, "flood-0"), Frames(client, clip, "flood-0")
             station.kill()
             station.wait(timeout=10)
-            stopped = watch.wait_for("stopped", timeout=15)  # lease + grace
+            # frames keep flowing, so that the station's absence ends the session, not idling
+            frames.run(15, until=lambda: any(r.status.value == "stopped"
+                                             for r in watch.results))  # lease + grace
+            stopped = watch.wait_for("stopped", timeout=1)
             assert stopped.code.value == "session_expired" and "station" in stopped.message
             time.sleep(0.5)
             assert [s for s in client.status().sessions if s.stream_id.startswith("flood")] == []
@@ -269,6 +288,49 @@ def test_a_station_that_reconnects_within_the_grace_keeps_its_sessions(strict, c
         finally:
             again.stop(ack.session_id)
             again.close()
+
+
+def test_a_restarted_station_adopts_the_sessions_it_left_behind(strict, clip) -> None:
+    with TrackingClient(connect=[strict.endpoint]) as observer:
+        watch, frames = Watcher(observer, "adopted"), Frames(observer, clip, "adopted")
+        first = TrackingClient(connect=[strict.endpoint])  # a random client_id per run
+        ack = first.start("adopted", clip.box, preset="bacf", frame_seq=0)
+        frames.run(0.5)
+        first.close()  # the station restarts, under a new id
+        second = TrackingClient(connect=[strict.endpoint])
+        try:
+            (info,) = second.status(stream_id="adopted").sessions
+            assert (info.session_id, info.client_id) == (ack.session_id, first.client_id)
+            second.reinit(ack.session_id, clip.box, adopt=True)
+            assert second.status(stream_id="adopted").sessions[0].client_id == second.client_id
+            frames.run(2.5)  # past the first station's grace (1 s), checked once a second
+            assert [r for r in watch.results if r.status.value == "stopped"] == []
+        finally:
+            second.close()
+        # the adopting station is gone in turn: the session follows its token now
+        frames.run(8, until=lambda: any(r.status.value == "stopped" for r in watch.results))
+        stopped = watch.wait_for("stopped", timeout=1)
+        assert stopped.code.value == "session_expired" and second.client_id in stopped.message
+        with pytest.raises(ValueError, match="tie_sessions"):
+            TrackingClient(connect=[strict.endpoint], tie_sessions=False).reinit(
+                ack.session_id, clip.box, adopt=True)
+
+
+def test_a_station_token_never_seen_has_the_grace_to_appear(strict, clip) -> None:
+    from schemas import Ack, StartRequest
+
+    with TrackingClient(connect=[strict.endpoint]) as client:
+        watch, frames = Watcher(client, "ghost"), Frames(client, clip, "ghost")
+        start = StartRequest(request_id="ghost-1", stream_id="ghost", box=list(clip.box),
+                             preset="bacf", frame_seq=0, client_id="no-such-station")
+        (reply,) = list(client.session.get(KEYS.control(), payload=encode(start), timeout=5))
+        decode(reply.ok.payload.to_bytes(), expected=Ack)
+        t0 = time.monotonic()
+        frames.run(8, until=lambda: any(r.status.value == "stopped" for r in watch.results))
+        stopped = watch.wait_for("stopped", timeout=1)
+        assert stopped.code.value == "session_expired" and "no-such-station" in stopped.message
+        assert time.monotonic() - t0 < 4  # grace (1 s) + one check (1 s), not the idle rule
+        assert frames.seq > 5  # the frames kept flowing meanwhile: not an idle end
 
 
 def test_a_box_outside_its_frame_ends_the_session_visibly(strict, clip) -> None:
