@@ -70,7 +70,11 @@ class StreamRecord:
     sessions: list[str] = field(default_factory=list)
     #: (frame seq, monotonic time sent)
     sent: list[tuple[int, float]] = field(default_factory=list)
+    #: results about frames (every status but ``stopped``)
     received: list[Received] = field(default_factory=list)
+    #: the last ``stopped`` result of each session that ended (by its stop or the service's
+    #: decision): about no frame, so apart from the frame accounting and the latencies
+    ended: list[Received] = field(default_factory=list)
     foreign: int = 0
     _answers: dict[int, int] = field(default_factory=dict)
 
@@ -91,6 +95,10 @@ class StreamRecord:
                 self.foreign += 1
                 return None
             got = Received(result, now, (wall - result.capture_ts_ns) / 1e9)
+            if got.status == "stopped":
+                self.ended.append(got)
+                self.cond.notify_all()
+                return got
             self.received.append(got)
             self._answers[result.frame_seq] = self._answers.get(result.frame_seq, 0) + 1
             self.cond.notify_all()
@@ -154,7 +162,7 @@ class StreamRecord:
             sessions = list(self.sessions)
             received = list(self.received)
         for sid in sessions:
-            rows = [r for r in received if r.session_id == sid and r.status != "stopped"]
+            rows = [r for r in received if r.session_id == sid]
             out["sessions"] += 1
             if not rows:
                 out["tail"] += n_sent

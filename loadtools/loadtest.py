@@ -266,7 +266,7 @@ def run_load(
 
     reports, all_lat = [], []
     for st in started:
-        rs = [r for r in st.record.received if r.status != "stopped"]
+        rs = st.record.received
         rep = StreamReport(st.name, st.clip.name, sessions_per_stream, frames_sent=st.sent,
                            results=len(rs))
         lat = [r.latency_s for r in rs]

@@ -277,13 +277,26 @@ def _short(value: Any, limit: int = 64) -> str:
     return _clip(repr(value), limit)
 
 
-def _describe_errors(msg_type: str, exc: ValidationError) -> tuple[str, list[dict[str, Any]], bool]:
+def _field_code(err: dict[str, Any]) -> ErrorCode:
+    """The code of one validation error: a box gets ``invalid_box``, an override
+    ``invalid_parameter`` (as a value the presets refuse), anything else ``invalid_request``."""
+    field = err["loc"][0] if err["loc"] else None
+    if field == "box" or err["type"] == BOX_ERROR_TYPE:
+        return ErrorCode.INVALID_BOX
+    if field == "overrides":
+        return ErrorCode.INVALID_PARAMETER
+    return ErrorCode.INVALID_REQUEST
+
+
+def _describe_errors(msg_type: str, exc: ValidationError
+                     ) -> tuple[str, list[dict[str, Any]], ErrorCode]:
+    """The message, the errors and their code: the field's own code when every error is in
+    one kind of field (the box, the overrides), else ``invalid_request``."""
     errors = exc.errors(include_url=False, include_input=False, include_context=False)
     parts = []
-    only_box = bool(errors)
+    codes = {_field_code(err) for err in errors}
+    code = codes.pop() if len(codes) == 1 else ErrorCode.INVALID_REQUEST
     for index, err in enumerate(errors):
-        if not (err["loc"] and err["loc"][0] == "box") and err["type"] != BOX_ERROR_TYPE:
-            only_box = False
         if index == _MAX_LISTED_ERRORS:
             parts.append(f"and {len(errors) - index} more")
             continue
@@ -298,7 +311,7 @@ def _describe_errors(msg_type: str, exc: ValidationError) -> tuple[str, list[dic
         else:
             text = err["msg"].removeprefix("Value error, ")
         parts.append(f"{loc}: {text}")
-    return f"invalid {msg_type} message: " + "; ".join(parts), errors, only_box
+    return f"invalid {msg_type} message: " + "; ".join(parts), errors, code
 
 
 @overload
@@ -392,11 +405,11 @@ def decode(
     try:
         return model.model_validate(obj)
     except ValidationError as exc:
-        message, errors, only_box = _describe_errors(msg_type, exc)
+        message, errors, code = _describe_errors(msg_type, exc)
         raise InvalidMessage(
             message,
             errors=errors,
-            code=ErrorCode.INVALID_BOX if only_box else ErrorCode.INVALID_REQUEST,
+            code=code,
             msg_type=msg_type,
             **_ids(obj),
         ) from None

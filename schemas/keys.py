@@ -82,16 +82,19 @@ KEY_ROUTES: tuple[KeyRoute, ...] = (
         "errors",
         "<prefix>/streams/<stream>/errors",
         "service puts",
-        "error messages about that stream's frames (undecodable, oversized, no session)",
+        "error messages about that stream's frames: refused ones (undecodable, oversized, "
+        "rate-limited, out-of-sequence, wrong key, no session) and notices (a restarted "
+        "numbering); the codes are in the contract's error table",
         ("error",),
     ),
     KeyRoute(
         "control",
         "<prefix>/control",
         "service queryable; clients get with a request as payload",
-        "start, reinit, stop and status_request requests; the reply is an ack (status for "
-        "status_request) or an error",
-        ("start", "reinit", "stop", "status_request", "ack", "status", "error"),
+        "start, reinit, stop, status_request and presets_request requests; the reply is an "
+        "ack (status for status_request, presets for presets_request) or an error",
+        ("start", "reinit", "stop", "status_request", "presets_request", "ack", "status",
+         "presets", "error"),
     ),
     KeyRoute(
         "workers",

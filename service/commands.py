@@ -42,8 +42,9 @@ class ReinitSession:
 
 @dataclass(frozen=True)
 class StopSession:
-    """Stop a session. With a ``reason`` (the service ends it, not its station), its last
-    result says so: status ``stopped``, ``code`` and ``reason`` as its message."""
+    """Stop a session. With a ``reason``, its last result says so: status ``stopped``,
+    ``reason`` as its message and ``code`` if the service ended it (not its station); without
+    one (a session moving to another instance), no result."""
 
     session_id: str
     reason: str | None = None

@@ -496,7 +496,9 @@ class ControlPlane:
             self.sessions.pop(rec.session_id, None)
         if self.cluster is not None:
             self.cluster.withdraw(rec.session_id)
-        self._forward(rec.worker, StopSession(rec.session_id))
+        # the last result says it ended, for whoever watches it (not only the requester)
+        self._forward(rec.worker, StopSession(rec.session_id, reason="stopped by a station's "
+                                              "stop request"))
         return Ack(request_id=req.request_id, session_id=rec.session_id,
                    stream_id=rec.stream_id, message="session stopped")
 

@@ -72,15 +72,17 @@ class Numbering:
     #: candidate runs of refused frames: [their last frame, how many]
     runs: list[list[int]] = field(default_factory=list)
 
+    def plausible_gap(self, now: float) -> int:
+        """How far after the last frame a frame arriving at ``now`` may be numbered."""
+        return min(self.max_gap, self.slack + int(self.rate * max(now - self.last_time, 0.0)))
+
     def admit(self, seq: int, now: float) -> tuple[Verdict, int]:
         """The verdict on frame ``seq`` arriving at ``now`` (monotonic s) and how many frames
         it says were lost before it."""
         if self.last is None:
             self.last, self.last_time = seq, now
             return Verdict.FIRST, 0
-        plausible = min(self.max_gap,
-                        self.slack + int(self.rate * max(now - self.last_time, 0.0)))
-        if self.last < seq <= self.last + plausible:
+        if self.last < seq <= self.last + self.plausible_gap(now):
             lost = seq - self.last - 1
             self.last, self.last_time, self.runs = seq, now, []
             return Verdict.NEXT, lost

@@ -469,18 +469,22 @@ class Worker:
             self._error(stream, ErrorCode.INVALID_KEY,
                         f"frame says stream {frame.stream_id!r} on {stream.stream_id!r}", frame.seq)
             return
-        last = stream.numbering.last
-        verdict, lost = stream.numbering.admit(frame.seq, time.monotonic())
+        last, now = stream.numbering.last, time.monotonic()
+        verdict, lost = stream.numbering.admit(frame.seq, now)
         if verdict is Verdict.STALE:
             # duplicate or out of order: tracking it would move the trackers back in time
             self._error(stream, ErrorCode.STALE_FRAME, f"frame {frame.seq} is not after frame "
                         f"{last}; dropped", frame.seq, every_s=1.0)
             return
         if verdict is Verdict.JUMP:
+            gap = stream.numbering.plausible_gap(now)
+            why = (f"max_seq_gap {gap}" if gap >= self.settings.max_seq_gap else
+                   f"what {self.settings.max_stream_fps:g} frames/s could have sent since, "
+                   f"plus {stream.numbering.slack}")
             self._error(stream, ErrorCode.SEQUENCE_JUMP, f"frame {frame.seq} is more than "
-                        f"{self.settings.max_seq_gap} frames after frame {last}; dropped (a "
-                        f"restarted numbering is followed after {self.settings.resync_frames} "
-                        "frames in a row)", frame.seq, every_s=1.0)
+                        f"{gap} frames after frame {last} ({why}); dropped (a restarted "
+                        f"numbering is followed once {self.settings.resync_frames} frames in a "
+                        "row agree)", frame.seq, every_s=1.0)
             return
         if verdict is Verdict.RESTART:
             self._error(stream, ErrorCode.SEQUENCE_RESTARTED, f"the stream's numbering "
@@ -517,7 +521,7 @@ class Worker:
                     status = s.pending_status
                     if s.pending_seq is not None and frame.seq > s.pending_seq:
                         message = (f"box of frame {s.pending_seq} applied to frame {frame.seq}"
-                                   " (its frame never came)")
+                                   ", the first this session saw at or after it")
                 except ARCFError as exc:
                     status, message = "error", str(exc)
                     error_code, unusable_box = ErrorCode.INVALID_BOX, True

@@ -436,9 +436,11 @@ def test_negative_frame_seq_in_requests() -> None:
 
 
 def test_overrides_limits() -> None:
+    """A bad override is ``invalid_parameter`` whether the schema or the presets refuse it;
+    the field is named."""
     many = {f"p{i}": i for i in range(33)}
     err = assert_error(
-        packed({**START, "overrides": many}), InvalidMessage, ErrorCode.INVALID_REQUEST
+        packed({**START, "overrides": many}), InvalidMessage, ErrorCode.INVALID_PARAMETER
     )
     assert "overrides" in str(err)
     ok = {f"p{i}": i for i in range(32)}
@@ -447,13 +449,14 @@ def test_overrides_limits() -> None:
         err = assert_error(
             packed({**START, "overrides": {"gamma": bad}}),
             InvalidMessage,
-            ErrorCode.INVALID_REQUEST,
+            ErrorCode.INVALID_PARAMETER,
         )
         assert "overrides.gamma" in str(err)
     for bad_key in ("", "a b", "1abc", "a/b", "x" * 65):
-        assert_error(
-            packed({**START, "overrides": {bad_key: 1}}), InvalidMessage, ErrorCode.INVALID_REQUEST
-        )
+        assert_error(packed({**START, "overrides": {bad_key: 1}}), InvalidMessage,
+                     ErrorCode.INVALID_PARAMETER)
+    mixed = {**START, "overrides": {"gamma": NAN}, "box": [1, 2, 3]}  # two kinds of field
+    assert_error(packed(mixed), InvalidMessage, ErrorCode.INVALID_REQUEST)
     kinds = decode(packed({**START, "overrides": {"b": True, "i": 1, "f": 1.5, "s": "x"}}))
     assert [type(v) for v in kinds.overrides.values()] == [bool, int, float, str]  # type: ignore[attr-defined]
 

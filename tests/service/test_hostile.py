@@ -375,6 +375,16 @@ def test_frame_seq_in_the_past_present_and_future(strict, clip) -> None:
         assert "box of frame 2 applied to frame 5" in (mine[past.session_id][0].message or "")
         for sid in (first.session_id, later.session_id, past.session_id):
             client.stop(sid)
+        # a station's stop ends the session's results with a last `stopped`, without a code
+        deadline = time.monotonic() + 5
+        while len([r for r in watch.results if r.status.value == "stopped"]) < 3:
+            assert time.monotonic() < deadline, "a stopped session's last result is missing"
+            time.sleep(0.05)
+        ends = [r for r in watch.results if r.status.value == "stopped"]
+        assert {r.session_id for r in ends} == {first.session_id, later.session_id,
+                                                past.session_id}
+        assert all(r.code is None and "stop request" in r.message for r in ends)
+        assert next(r for r in ends if r.session_id == first.session_id).frame_seq == 9
 
 
 def test_a_session_over_its_budget_ends_and_says_so(clip) -> None:

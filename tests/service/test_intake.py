@@ -42,6 +42,9 @@ def test_gaps_within_the_bound_are_frames_lost() -> None:
     assert _feed(fast, [0, 1, 899], dt=0.033) == [("first", 0), ("next", 0), ("jump", 0)]
     assert _feed(fast, [2, 40], dt=0.033) == [("next", 0), ("jump", 0)]
     assert _feed(fast, [500], dt=8.0) == [("next", 497)]  # 8 s of loss: plausible
+    # the bound a refusal names: the rate's, until max_seq_gap caps it
+    assert fast.plausible_gap(fast.last_time + 1.0) == 30 + 60
+    assert fast.plausible_gap(fast.last_time + 60.0) == 900
 
 
 def test_one_rogue_frame_cannot_lock_a_stream_out() -> None:
