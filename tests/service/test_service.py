@@ -338,7 +338,13 @@ def test_reinit_numpy_frames_and_callbacks(service, frames) -> None:
             while len(received) <= i and time.monotonic() < deadline:
                 time.sleep(0.01)
         client.stop(ack.session_id)
+        deadline = time.monotonic() + 10  # the session's last result: it stopped
+        while len(received) <= len(images) and time.monotonic() < deadline:
+            time.sleep(0.01)
         sub.close()
+    *received, last = received
+    assert str(getattr(last.status, "value", last.status)) == "stopped"
+    assert last.frame_seq == len(images) - 1 and last.code is None
     t = arcf.create_tracker("arcf-h")
     expected = [t.init(images[0], init_box).box]
     expected += [t.update(im).box for im in images[1:4]]
