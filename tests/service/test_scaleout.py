@@ -138,3 +138,46 @@ def test_instances_share_streams_fail_over_and_rebalance() -> None:
             for pid in svc.workers:
                 stat = Path(f"/proc/{pid}/stat")
                 assert not stat.exists() or stat.read_text().rsplit(")", 1)[1].split()[0] == "Z"
+
+
+def test_a_vanished_stations_grace_outlives_the_instance_running_its_session() -> None:
+    """A station vanishes, and the instance running its session dies during the grace: the
+    instance that resumes the session gives the station a grace of its own, so the session
+    still ends by the station's absence (not, a minute later, by idling), and says so."""
+    clip = Clip.of(load_dataset("uav123_10fps", sequences=["wakeboard7"])[0], limit=40)
+    ids = ["grace-a", "grace-b"]
+    stream = next(n for n in (f"grace-{k}" for k in range(1000)) if owner(n, ids) == "grace-a")
+    router = RouterProcess()
+    instances = start_instances(ids, router.endpoint, "--lease-ms", "1500",
+                                "--client-grace-s", "3", "--session-idle-s", "60")
+    observer = TrackingClient(connect=[router.endpoint], tie_sessions=False)
+    station = TrackingClient(connect=[router.endpoint])
+    try:
+        results: list = []
+        sub = observer.results(stream, callback=results.append)
+        station.start(stream, clip.box, preset="bacf", frame_seq=0)
+        t0 = time.monotonic()
+        seq, killed_at = 0, None
+        # frames keep coming (from the observer): nothing here idles; bounded to 25 s
+        while time.monotonic() - t0 < 25 and not any(r.status == "stopped" for r in results):
+            observer.publish_frame(stream, data=clip.frames[seq % len(clip)], seq=seq)
+            seq += 1
+            if seq == 10:
+                station.close()  # the station is gone: its grace (3 s) starts
+            if seq == 20:  # 1 s into the grace, the instance running the session dies
+                instances["grace-a"].proc.send_signal(signal.SIGKILL)
+                instances["grace-a"].proc.wait(timeout=10)
+                killed_at = time.monotonic()
+            time.sleep(0.1)
+        sub.close()
+        statuses = [r.status.value for r in results]
+        assert "resumed" in statuses, statuses  # the survivor took the session over...
+        (stopped,) = [r for r in results if r.status == "stopped"]  # ...and ended it
+        assert stopped.code == "session_expired" and station.client_id in stopped.message
+        assert killed_at is not None and time.monotonic() - killed_at < 12  # lease + grace
+    finally:
+        observer.close()
+        for svc in instances.values():
+            if svc.proc.poll() is None:
+                assert svc.stop() == 0
+        router.stop()
