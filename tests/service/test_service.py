@@ -87,7 +87,7 @@ def _collect(stream, n: int, timeout: float = 60.0) -> list:
 
 def test_results_equal_the_library_offline(service, frames) -> None:
     seq, data = frames
-    with TrackingClient(connect=[service.endpoint]) as client, \
+    with TrackingClient(connect=[service.endpoint], frame_congestion="block") as client, \
             _lockstep(client, {"wb7": (_clip(seq, data), ["arcf-h"])}) as fleet:
         got = sorted(_got(fleet, "wb7"), key=lambda r: r.frame_seq)
     assert [r.frame_seq for r in got] == list(range(len(data)))
@@ -103,7 +103,7 @@ def test_results_equal_the_library_offline(service, frames) -> None:
 def test_two_streams_and_several_sessions_do_not_interfere(service, frames) -> None:
     seq, data = frames
     box_b = (seq.init_box[0] + 3, seq.init_box[1] + 2, seq.init_box[2], seq.init_box[3])
-    with TrackingClient(connect=[service.endpoint]) as client, \
+    with TrackingClient(connect=[service.endpoint], frame_congestion="block") as client, \
             _lockstep(client, {"multi-a": (_clip(seq, data), ["arcf-h", "bacf"]),
                                "multi-b": (_clip(seq, data, box_b), ["arcf-h"])}) as fleet:
         got_a, got_b = _got(fleet, "multi-a"), _got(fleet, "multi-b")
@@ -118,6 +118,11 @@ def test_two_streams_and_several_sessions_do_not_interfere(service, frames) -> N
         rs = sorted(by_session[sid], key=lambda r: r.frame_seq)
         assert len(rs) == len(data)
         np.testing.assert_allclose([r.box for r in rs], boxes, atol=1e-9)
+
+
+def test_frames_are_dropped_or_blocked_as_asked() -> None:
+    with pytest.raises(ValueError, match="frame_congestion"):
+        TrackingClient(connect=["tcp/127.0.0.1:9"], frame_congestion="maybe")
 
 
 def test_control_errors_are_clear(service) -> None:
@@ -163,7 +168,7 @@ def test_bad_input_is_counted_and_the_session_goes_on(service, frames) -> None:
     seq, data = frames
     keys = KeySpace()
     errors_before = service.metric("arcf_errors_total")
-    with TrackingClient(connect=[service.endpoint]) as client:
+    with TrackingClient(connect=[service.endpoint], frame_congestion="block") as client:
         results = client.results("bad")
         errors = []
         sub = client.session.declare_subscriber(keys.errors("bad"), lambda s: errors.append(s))
@@ -195,7 +200,7 @@ def test_metrics_count_what_was_sent(service, frames) -> None:
     seq, data = frames
     before_results = service.metric("arcf_results_published_total")
     before_frames = service.metric("arcf_frames_processed_total")
-    with TrackingClient(connect=[service.endpoint]) as client, \
+    with TrackingClient(connect=[service.endpoint], frame_congestion="block") as client, \
             _lockstep(client, {"count": (_clip(seq, data[:10]), ["bacf"])}) as fleet:
         got = _got(fleet, "count")
     time.sleep(0.5)
@@ -218,7 +223,7 @@ def test_flooded_stream_drops_are_accounted_and_other_streams_unaffected(service
     same service meanwhile gets every one of its frames."""
     seq, data = frames
     n_flood = 60
-    with TrackingClient(connect=[service.endpoint]) as client:
+    with TrackingClient(connect=[service.endpoint], frame_congestion="block") as client:
         flood, calm = client.results("flood"), client.results("calm")
         a = client.start("flood", seq.init_box, preset="arcf-hc", frame_seq=0)
         b = client.start("calm", seq.init_box, preset="bacf", frame_seq=0)
@@ -327,7 +332,7 @@ def test_reinit_numpy_frames_and_callbacks(service, frames) -> None:
     init_box = tuple(v / 2 for v in seq.init_box)
     new_box = tuple(float(v) / 2 for v in seq.groundtruth[4])
     received: list = []
-    with TrackingClient(connect=[service.endpoint]) as client:
+    with TrackingClient(connect=[service.endpoint], frame_congestion="block") as client:
         sub = client.results("raw", callback=received.append)
         ack = client.start("raw", init_box, preset="arcf-h", frame_seq=0)
         for i, image in enumerate(images):

@@ -113,7 +113,7 @@ def slow_workers():
 
 
 def test_the_first_frame_after_the_ack_is_never_lost(slow_workers, clip) -> None:
-    with TrackingClient(connect=[slow_workers.endpoint]) as client:
+    with TrackingClient(connect=[slow_workers.endpoint], frame_congestion="block") as client:
         for attempt in range(2):  # a second session on a new stream: a fresh subscription
             stream = f"late-{attempt}"
             results: list[Any] = []
