@@ -99,7 +99,8 @@ def cmd_track(args: argparse.Namespace) -> int:
     out = open(args.output, "w") if args.output else sys.stdout  # noqa: SIM115
     details = open(args.details, "w") if args.details else None  # noqa: SIM115
     if details:
-        details.write("frame,x,y,w,h,peak,psr,aberrance,aberrance_release,scale,seconds\n")
+        details.write("frame,x,y,w,h,peak,psr,aberrance,aberrance_release,scale,confidence,"
+                      "state,seconds\n")
     writer = None
     if args.video:
         Path(args.video).parent.mkdir(parents=True, exist_ok=True)
@@ -119,10 +120,12 @@ def cmd_track(args: argparse.Namespace) -> int:
                 details.write(
                     f"{result.frame_index},{x:.3f},{y:.3f},{w:.3f},{h:.3f},{result.peak:.5f},"
                     f"{result.psr:.3f},{result.aberrance:.6f},{result.aberrance_release:.6f},"
-                    f"{result.scale:.5f},{seconds:.6f}\n"
+                    f"{result.scale:.5f},{result.confidence:.4f},{result.state.value},"
+                    f"{seconds:.6f}\n"
                 )
             if args.video or args.overlay_dir:
-                caption = f"{args.preset} #{result.frame_index} peak {result.peak:.2f}"
+                caption = (f"{args.preset} #{result.frame_index} {result.state.value} "
+                           f"{result.confidence:.2f}")
                 img = draw(frame, result.box, caption)
                 if args.video:
                     if writer is None:
@@ -169,7 +172,8 @@ def build_parser() -> argparse.ArgumentParser:
         help="override a preset parameter, e.g. --set aberrance=release --set gamma=0.5",
     )
     t.add_argument("-o", "--output", help="result file (default: standard output)")
-    t.add_argument("--details", help="CSV with per-frame confidence, aberrance, scale and time")
+    t.add_argument("--details",
+                   help="CSV with per-frame signals, confidence, state, scale and time")
     t.add_argument("--video", help="write an annotated video (e.g. out.mp4)")
     t.add_argument("--overlay-dir", help="write annotated frames into this folder")
     t.add_argument("--fps", type=float, default=10.0, help="frame rate of --video (default 10)")

@@ -21,6 +21,7 @@ from typing import Any, Literal
 
 from .errors import InvalidParameterError, UnknownPresetError
 from .features.fhog import ArithmeticMode as FhogArithmetic
+from .state import StateParams
 
 AberranceMode = Literal["paper", "release"]
 ScaleMode = Literal["search", "filter"]
@@ -159,6 +160,9 @@ class TrackerParams:
     scale_step: float = 1.01
     #: ARCF-HC scale filter.
     scale_filter: ScaleFilterParams = field(default_factory=ScaleFilterParams)
+    #: The track state (tracking / coasting / lost), its confidence model and its update
+    #: policy (:mod:`arcf.state`); the default learns every frame, as the release does.
+    state: StateParams = field(default_factory=StateParams)
 
     def __post_init__(self) -> None:
         problems = []
@@ -377,13 +381,22 @@ TUNABLE: Mapping[str, Tunable] = MappingProxyType({
     "scale_filter.regularizer": Tunable(float, 1e-8, 1.0),
     "scale_filter.model_max_area": Tunable(int, 16, 4096),
     "scale_filter.model_min_side": Tunable(int, 4, 64),
+    # the track state (its logistic weights are checked by StateParams itself: finite)
+    "state.bias": Tunable(float, -100.0, 100.0),
+    "state.reference_frames": Tunable(int, 1, 300),
+    "state.coast_below": Tunable(float, 0.0, 1.0),
+    "state.lost_below": Tunable(float, 0.0, 1.0),
+    "state.lost_after": Tunable(int, 1, 10_000),
+    "state.resume_above": Tunable(float, 0.0, 1.0),
+    "state.update_policy": Tunable(str, choices=("always", "tracking")),
 })
 
 
 def make_params(preset: str | TrackerParams, **overrides: Any) -> TrackerParams:
     """A preset with keyword overrides, e.g. ``make_params("arcf-h", aberrance="release")``.
 
-    ``scale_filter`` may be overridden with a :class:`ScaleFilterParams` or a dict of its fields.
+    ``scale_filter`` and ``state`` may be overridden with a :class:`ScaleFilterParams` /
+    :class:`~arcf.state.StateParams` or a dict of its fields.
     """
     if isinstance(preset, TrackerParams):
         base = preset
@@ -421,6 +434,18 @@ def make_params(preset: str | TrackerParams, **overrides: Any) -> TrackerParams:
             raise InvalidParameterError(f"invalid parameters for {base.name!r}: {exc}") from None
     if isinstance(sf, dict):
         overrides["scale_filter"] = dataclasses.replace(base.scale_filter, **sf)
+    st = overrides.get("state")
+    if isinstance(st, dict):
+        st_names = {f.name for f in dataclasses.fields(StateParams)}
+        bad = sorted(set(st) - st_names)
+        if bad:
+            raise UnknownPresetError(f"unknown state parameter(s) {bad}; valid: {sorted(st_names)}")
+        for key, value in st.items():
+            if f"state.{key}" in TUNABLE:
+                TUNABLE[f"state.{key}"].check(f"state.{key}", value)
+        overrides["state"] = dataclasses.replace(base.state, **st)
+    elif st is not None and not isinstance(st, StateParams):
+        raise UnknownPresetError("state must be a StateParams or a dict of its fields")
     if "features" in overrides:
         overrides["features"] = tuple(overrides["features"])
     return dataclasses.replace(base, **overrides) if overrides else base

@@ -50,6 +50,7 @@ from .fourier import (
 )
 from .presets import TrackerParams, make_params
 from .scale import DSSTScaleFilter, scale_limits, search_scale_factors
+from .state import TrackMonitor, TrackState
 
 Box = tuple[float, float, float, float]
 
@@ -59,11 +60,16 @@ class TrackResult:
     """What the tracker reports for one frame.
 
     ``peak`` is the response maximum at the sub-cell peak and ``psr`` the peak-to-sidelobe ratio
-    of the response map: both are confidences (low when the target is lost or occluded).
-    ``aberrance`` is the response-map difference of Eq. 2 (Euclidean norm of the previous map,
-    shifted onto the current peak, minus the current map); ``aberrance_release`` is the same
-    difference measured as the release does (largest singular value), comparable with the
-    published ``map_diff`` files. Both are 0 on the first frame.
+    of the response map: both are low when the target is lost or occluded, but neither is a
+    probability. ``aberrance`` is the response-map difference of Eq. 2 (Euclidean norm of the
+    previous map, shifted onto the current peak, minus the current map); ``aberrance_release``
+    is the same difference measured as the release does (largest singular value), comparable
+    with the published ``map_diff`` files. Both are 0 on the first frame.
+
+    ``confidence`` is the calibrated estimate, from those signals, that the box overlaps the
+    target at all (IoU > 0), and ``state`` what the tracker makes of it: ``tracking``,
+    ``coasting`` (probably hidden: the box is a guess) or ``lost`` (:mod:`arcf.state`). The
+    first frame of a (re)initialisation is ``tracking`` with confidence 1: its box was given.
     """
 
     box: Box
@@ -73,16 +79,8 @@ class TrackResult:
     aberrance_release: float
     scale: float
     frame_index: int
-
-    @property
-    def confidence(self) -> float:
-        """The response peak, the usual DCF confidence.
-
-        Its scale is set by the filter's regularisation, not normalised: for these presets it sits
-        around 0.01-0.05 while tracking well. Compare it with the same track's recent history (or
-        use ``psr``, which is scale-free) rather than with a fixed absolute threshold.
-        """
-        return self.peak
+    confidence: float = 1.0
+    state: TrackState = TrackState.TRACKING
 
 
 @dataclass(frozen=True, eq=False)
@@ -220,6 +218,8 @@ class ARCFTracker:
         self._colornames_path = str(colornames_path) if colornames_path is not None else None
         self._layout: Layout | None = None
         self._state: FrameState | None = None
+        #: the track state's references and state machine (per (re)initialisation)
+        self._monitor = TrackMonitor(params.state)
         #: Paper formulation (or γ = 0, or the release's target made conjugate symmetric):
         #: filters are real in space, half spectra suffice.
         self._hermitian = (
@@ -283,6 +283,7 @@ class ARCFTracker:
         except BaseException:
             self._layout, self._state = previous
             raise
+        verdict = self._monitor.reset()
         return TrackResult(
             box=self._box(),
             peak=float(first.max()),
@@ -291,10 +292,13 @@ class ARCFTracker:
             aberrance_release=0.0,
             scale=1.0,
             frame_index=0,
+            confidence=verdict.confidence,
+            state=verdict.state,
         )
 
     def update(self, frame: np.ndarray) -> TrackResult:
-        """Track into the next frame: detect, measure the aberrance, train."""
+        """Track into the next frame: detect, measure the aberrance, judge the track's state,
+        train (every frame, or only while tracking: ``params.state.update_policy``)."""
         if self._state is None:
             raise NotInitializedError("call init(frame, box) before update(frame)")
         state, layout = self.state, self.layout
@@ -302,15 +306,20 @@ class ARCFTracker:
         state.frame_index += 1
         response, peak = self._detect(image)
         frob, spectral, target_f = self._aberrance(response)
-        self._train(image, target_f)
+        psr = peak_to_sidelobe(response, layout.psr_radius)
+        verdict = self._monitor.observe(peak, psr, spectral)
+        if self.params.state.update_policy == "always" or verdict.state is TrackState.TRACKING:
+            self._train(image, target_f)
         return TrackResult(
             box=self._box(),
             peak=peak,
-            psr=peak_to_sidelobe(response, layout.psr_radius),
+            psr=psr,
             aberrance=frob,
             aberrance_release=spectral,
             scale=state.scale_factor / layout.initial_scale,
             frame_index=state.frame_index,
+            confidence=verdict.confidence,
+            state=verdict.state,
         )
 
     # ------------------------------------------------------------------ configuration

@@ -43,6 +43,11 @@ def test_track_writes_one_row_per_frame_and_follows_the_target(tmp_path: Path) -
     csv = details.read_text().splitlines()
     assert csv[0].startswith("frame,x,y,w,h,peak,psr,aberrance")
     assert len(csv) == 13
+    header = csv[0].split(",")
+    first = dict(zip(header, csv[1].split(","), strict=True))
+    assert (first["state"], float(first["confidence"])) == ("tracking", 1.0)  # the init frame
+    assert all(row.split(",")[header.index("state")] in ("tracking", "coasting", "lost")
+               for row in csv[1:])
     assert len(list(overlay.glob("*.jpg"))) == 12
 
 

@@ -236,7 +236,7 @@ def test_result_fields(preset: str) -> None:
         assert len(r.box) == 4 and all(math.isfinite(v) for v in r.box)
         assert r.box[2] > 0 and r.box[3] > 0
         assert 0.0 < r.peak < 1.0  # measured ~0.02-0.03 on a well-tracked target
-        assert r.confidence == r.peak
+        assert 0.0 <= r.confidence <= 1.0 and r.state.value in ("tracking", "coasting", "lost")
         assert math.isfinite(r.psr) and r.psr > 3.0
         assert math.isfinite(r.scale) and r.scale > 0
     later = results[1:]
@@ -970,16 +970,20 @@ def test_every_parameter_is_declared_and_every_preset_within_its_ranges() -> Non
         RELEASE_COMPATIBLE,
         TUNABLE,
         ScaleFilterParams,
+        StateParams,
         TrackerParams,
     )
 
-    fields = {f.name for f in dataclasses.fields(TrackerParams)} - {"name", "scale_filter"}
+    fields = {f.name for f in dataclasses.fields(TrackerParams)} - {"name", "scale_filter",
+                                                                    "state"}
     sf_fields = {f"scale_filter.{f.name}" for f in dataclasses.fields(ScaleFilterParams)}
-    assert set(TUNABLE) == (fields - HOST_PARAMETERS) | sf_fields
+    # the logistic weights: a vector, checked by StateParams itself
+    st_fields = {f"state.{f.name}" for f in dataclasses.fields(StateParams)} - {"state.weights"}
+    assert set(TUNABLE) == (fields - HOST_PARAMETERS) | sf_fields | st_fields
     for preset in PRESETS.values():
         for key, tunable in TUNABLE.items():
             owner, _, attr = key.rpartition(".")
-            value = getattr(preset.scale_filter if owner else preset, attr)
+            value = getattr(getattr(preset, owner) if owner else preset, attr)
             tunable.check(key, list(value) if isinstance(value, tuple) else value)
         make_params(preset.name, **RELEASE_COMPATIBLE)
 
