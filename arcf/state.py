@@ -50,6 +50,9 @@ class TrackState(str, Enum):
     LOST = "lost"
 
 
+#: the states as numbers, for numeric files (the runner's ``_details.csv``)
+STATE_CODES = {TrackState.TRACKING: 0, TrackState.COASTING: 1, TrackState.LOST: 2}
+
 #: feature names, in the order of ``StateParams.weights``
 FEATURES = ("ln_psr", "ln_peak_ratio", "ln_aberrance_ratio")
 

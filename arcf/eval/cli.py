@@ -4,6 +4,8 @@
     arcf eval run --preset arcf-h --set aberrance=release --label arcf-h_release --dataset dtb70
     arcf eval score results/arcf-h/UAV123_10fps $ARCF_DATA/published_results/UAV123_10fps/\
         groundtruth
+    arcf eval failure results/arcf-h/UAV123_10fps $ARCF_DATA/published_results/UAV123_10fps/\
+        groundtruth --plot failure.png
 """
 
 from __future__ import annotations
@@ -88,6 +90,45 @@ def cmd_score(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_failure(args: argparse.Namespace) -> int:
+    """How well the run's track states flag its failures (``arcf.eval.failure``)."""
+    from .failure import pool, pr_curve, score_folder_failures
+
+    try:
+        per = score_folder_failures(args.results, args.groundtruth,
+                                    sequences=_sequence_filter(args.sequences), delay=args.delay)
+    except (ResultsError, DatasetError, ValueError, FileNotFoundError) as exc:
+        raise SystemExit(f"arcf eval failure: {exc}") from exc
+    print(f"## Failure detection: {args.results} (flagged: coasting or lost; recall within "
+          f"{args.delay} frames)\n")
+    print("| sequence | failure frames | recall | precision | false alarms / 1,000 good | "
+          "episodes flagged | median delay |\n| --- | --- | --- | --- | --- | --- | --- |")
+    for name, s in [*((n, r.score) for n, r in per.items()),
+                    ("**all**", pool(r.score for r in per.values()))]:
+        print(f"| {name} | {s.failure_frames} | {s.recall_at:.3f} | {s.precision:.3f} | "
+              f"{s.false_alarms_per_1000:.1f} | {s.episodes - s.missed_episodes}/{s.episodes} | "
+              f"{s.median_delay:.0f} |")
+    curve = pr_curve({n: 1.0 - r.confidence for n, r in per.items()},
+                     {n: r.failure for n, r in per.items()}, {n: r.good for n, r in per.items()},
+                     thresholds=[1.0 - t for t in (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)],
+                     delay=args.delay)
+    print("\nThe confidence alone, flagged below each threshold:\n")
+    print("| confidence < | recall | precision | false alarms / 1,000 good |\n| --- | --- | --- "
+          "| --- |")
+    for point in curve:
+        print(f"| {1.0 - point.threshold:.1f} | {point.recall_at:.3f} | {point.precision:.3f} |"
+              f" {point.false_alarms_per_1000:.1f} |")
+    if args.plot:
+        from .report import plot_failure_curve
+
+        try:
+            written = plot_failure_curve(curve, args.plot, title=str(args.results))
+        except ImportError as exc:
+            raise SystemExit(f"arcf eval failure: {exc}") from exc
+        print(f"\nwrote {written}", file=sys.stderr)
+    return 0
+
+
 def cmd_report(args: argparse.Namespace) -> int:
     from .paper import build_report
 
@@ -128,6 +169,15 @@ def add_parser(sub: argparse._SubParsersAction, parse_override: Any) -> None:  #
     s.add_argument("--convention", choices=("toolkit", "clean"), default="toolkit")
     s.add_argument("--sequences", help="comma-separated subset")
     s.set_defaults(func=cmd_score)
+
+    f = esub.add_parser("failure", help="how well a run's track states flag its failures")
+    f.add_argument("results", help="an arcf eval run folder (<sequence>.txt and _details.csv)")
+    f.add_argument("groundtruth", help="folder of <sequence>.txt ground-truth files")
+    f.add_argument("--sequences", help="comma-separated subset")
+    f.add_argument("--delay", type=int, default=3,
+                   help="frames a flag may lag a failure frame and still catch it (default 3)")
+    f.add_argument("--plot", help="write the confidence's precision-recall curve (PNG)")
+    f.set_defaults(func=cmd_failure)
 
     rp = esub.add_parser(
         "report",

@@ -22,12 +22,15 @@ precision-recall curve.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
 from .metrics import overlaps
+from .results import ResultsError, list_result_sequences, read_results
 
 #: frames of delay a flag may take and still catch a failure frame (issue 16's criterion)
 DEFAULT_DELAY = 3
@@ -156,3 +159,48 @@ def pr_curve(score: Mapping[str, np.ndarray], failure: Mapping[str, np.ndarray],
         points.append(CurvePoint(float(t), pooled.recall_at, pooled.precision,
                                  pooled.false_alarms_per_1000))
     return points
+
+
+@dataclass(frozen=True)
+class SequenceFailures:
+    """A run's failure detection on one sequence, read from its result folder."""
+
+    score: FailureScore
+    failure: np.ndarray
+    good: np.ndarray
+    #: the tracker's per-frame confidence (NaN where the run did not record one)
+    confidence: np.ndarray
+
+
+def score_folder_failures(results_dir: str | os.PathLike[str],
+                          groundtruth_dir: str | os.PathLike[str],
+                          sequences: Iterable[str] | None = None,
+                          delay: int = DEFAULT_DELAY) -> dict[str, SequenceFailures]:
+    """Failure detection of an ``arcf eval run`` folder: each sequence's boxes against its
+    ground truth, its flags from the ``state`` column of ``<sequence>_details.csv`` (frame 0,
+    the given box, is left out)."""
+    folder, gt_folder = Path(results_dir), Path(groundtruth_dir)
+    names = list(sequences) if sequences is not None else list_result_sequences(folder)
+    out = {}
+    for name in names:
+        details_path = folder / f"{name}_details.csv"
+        if not details_path.is_file():
+            raise ResultsError(f"{details_path} not found (runs of arcf eval run write it)")
+        with details_path.open(encoding="utf-8") as f:
+            header = f.readline().strip().split(",")
+        if "state" not in header:
+            raise ResultsError(f"{details_path} has no state column (a run before the track "
+                               "state existed: run it again)")
+        details = np.loadtxt(details_path, delimiter=",", skiprows=1, ndmin=2)
+        boxes = read_results(folder / f"{name}.txt")
+        gt = read_results(gt_folder / f"{name}.txt")
+        if not (len(boxes) == len(gt) == len(details)):
+            raise ResultsError(f"{name}: {len(boxes)} boxes, {len(gt)} ground-truth rows and "
+                               f"{len(details)} detail rows differ")
+        failure, good = failure_frames(boxes, gt)
+        flags = details[:, header.index("state")] != 0
+        conf = details[:, header.index("confidence")]
+        out[name] = SequenceFailures(
+            score_flags(flags[1:], failure[1:], good[1:], delay), failure[1:], good[1:],
+            conf[1:])
+    return out

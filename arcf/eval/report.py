@@ -42,6 +42,8 @@ if TYPE_CHECKING:
     from matplotlib.axes import Axes
     from matplotlib.figure import Figure
 
+    from arcf.eval.failure import CurvePoint
+
 __all__ = [
     "MAP_DIFF_SUFFIX",
     "CurveKind",
@@ -50,6 +52,7 @@ __all__ = [
     "map_difference_files",
     "map_difference_mean",
     "markdown_table",
+    "plot_failure_curve",
     "plot_map_difference",
     "plot_precision",
     "plot_success",
@@ -212,6 +215,29 @@ def plot_precision(
     dozen baselines. Returns the PNG path.
     """
     return _plot_curves(scores, path, title, "precision", ours, dpi)
+
+
+def plot_failure_curve(curve: Sequence[CurvePoint], path: str | os.PathLike[str], title: str = "",
+                       *, dpi: int = _DPI) -> Path:
+    """Failure detection by confidence (``arcf.eval.failure.pr_curve`` points): recall within
+    the delay against false alarms per 1,000 good frames, each point labelled with its
+    confidence threshold. Returns the PNG path."""
+    fig = _new_figure(5.0, 3.6)
+    ax = fig.add_subplot(1, 1, 1)
+    xs = [max(p.false_alarms_per_1000, 0.1) for p in curve]  # a log axis shows the low end
+    ax.plot(xs, [p.recall_at for p in curve], marker="o", color=_COLORS[0])
+    for x, p in zip(xs, curve, strict=True):
+        ax.annotate(f"{1.0 - p.threshold:.1f}", (x, p.recall_at), textcoords="offset points",
+                    xytext=(4, -10), fontsize=7)
+    ax.axvline(2.0, color="0.6", linestyle=":", linewidth=1)
+    ax.axhline(0.8, color="0.6", linestyle=":", linewidth=1)
+    ax.set_xscale("log")
+    ax.set_xlabel("false alarms per 1,000 frames of good tracking")
+    ax.set_ylabel("failure frames flagged (recall)")
+    ax.set_ylim(0, 1.02)
+    ax.set_title(title or "failure detection (labels: confidence threshold)", fontsize=9)
+    ax.grid(True, alpha=0.3)
+    return _save(fig, path, dpi)
 
 
 def plot_success(

@@ -4,7 +4,9 @@ Layout of a run, compatible with the published results so the same scoring code 
 
     <out>/<label>/<Dataset>/<sequence>.txt          x,y,w,h per frame (1-based pixel frame)
     <out>/<label>/<Dataset>/<sequence>_time.txt     tracker seconds per frame (no decoding)
-    <out>/<label>/<Dataset>/<sequence>_details.csv  peak, psr, aberrance, aberrance_release, scale
+    <out>/<label>/<Dataset>/<sequence>_details.csv  peak, psr, aberrance, aberrance_release, scale,
+                                                     confidence, state (0 tracking, 1 coasting,
+                                                     2 lost: ``STATE_CODES``)
     <out>/<label>/<Dataset>/<sequence>_map_diff.txt release-form map difference (like the authors')
     <out>/<label>/<Dataset>/fps.json                sequence -> FPS
 
@@ -28,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from ..state import STATE_CODES
 from .datasets import Sequence
 from .results import write_results
 
@@ -97,12 +100,13 @@ def run_one(spec: TrackerSpec, seq: Sequence, out: Path) -> SequenceRunInfo:
     # decoding is not part of the tracker's time
     run = run_sequence(tracker, (seq.read_frame(i) for i in range(len(seq))), seq.init_box)
     times = run.times
-    details = [(r.peak, r.psr, r.aberrance, r.aberrance_release, r.scale) for r in run.results]
+    details = [(r.peak, r.psr, r.aberrance, r.aberrance_release, r.scale, r.confidence,
+                STATE_CODES[r.state]) for r in run.results]
     folder = result_dir(out, spec, seq.dataset)
     folder.mkdir(parents=True, exist_ok=True)
     np.savetxt(folder / f"{seq.name}_time.txt", np.array(times), fmt="%.6f")
     d = np.array(details)
-    header = "peak,psr,aberrance,aberrance_release,scale"
+    header = "peak,psr,aberrance,aberrance_release,scale,confidence,state"
     np.savetxt(folder / f"{seq.name}_details.csv", d, fmt="%.7g", delimiter=",", header=header,
                comments="")
     np.savetxt(folder / f"{seq.name}_map_diff.txt", d[:, 3], fmt="%.7g")

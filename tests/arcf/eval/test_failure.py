@@ -68,3 +68,48 @@ def test_pooling_weighs_every_frame_and_the_curve_runs_from_all_to_nothing() -> 
 def test_shapes_must_agree() -> None:
     with pytest.raises(ValueError, match="differ in shape"):
         score_flags(np.zeros(3, bool), np.zeros(4, bool), np.zeros(4, bool))
+
+
+def _folder(tmp_path, with_state: bool = True):
+    """A run's folder by hand: 10 frames, the box off the target on frames 5..9 (a failure
+    episode), flagged from frame 6 (one frame late), and the ground truth."""
+    from arcf.eval.results import write_results
+
+    res, gt = tmp_path / "run", tmp_path / "gt"
+    truth = np.tile([10.0, 10.0, 20.0, 20.0], (10, 1))
+    boxes = truth.copy()
+    boxes[5:] = [200.0, 200.0, 20.0, 20.0]
+    write_results(res / "s.txt", boxes)
+    write_results(gt / "s.txt", truth)
+    state = np.zeros(10)
+    state[6:] = 2
+    conf = np.where(state > 0, 0.1, 0.9)
+    cols = "peak,psr,aberrance,aberrance_release,scale"
+    rows = np.column_stack([np.ones((10, 5)), conf, state]) if with_state else np.ones((10, 5))
+    header = cols + (",confidence,state" if with_state else "")
+    np.savetxt(res / "s_details.csv", rows, delimiter=",", header=header, comments="")
+    return res, gt
+
+
+def test_a_run_folder_is_scored_from_its_states(tmp_path, capsys) -> None:
+    from arcf.cli import main
+    from arcf.eval.failure import score_folder_failures
+
+    res, gt = _folder(tmp_path)
+    (s,) = score_folder_failures(res, gt).values()
+    assert (s.score.failure_frames, s.score.caught, s.score.delays) == (5, 5, (1,))
+    assert s.score.false_alarms == 0
+    assert main(["eval", "failure", str(res), str(gt), "--plot", str(tmp_path / "c.png")]) == 0
+    out = capsys.readouterr().out
+    assert "| s | 5 | 1.000 | 1.000 | 0.0 | 1/1 | 1 |" in out
+    assert "| 0.5 | 1.000 | 1.000 | 0.0 |" in out  # the confidence alone, below 0.5
+    assert (tmp_path / "c.png").stat().st_size > 1000
+
+
+def test_a_run_without_states_is_refused_with_the_reason(tmp_path) -> None:
+    from arcf.eval.failure import score_folder_failures
+    from arcf.eval.results import ResultsError
+
+    res, gt = _folder(tmp_path, with_state=False)
+    with pytest.raises(ResultsError, match="no state column"):
+        score_folder_failures(res, gt)

@@ -50,8 +50,11 @@ def test_run_writes_every_file_and_matches_an_in_process_run(tmp_path: Path, seq
         times = np.loadtxt(folder / f"{seq.name}_time.txt")
         assert times.shape == (len(seq),) and np.all(times > 0)
         details = np.loadtxt(folder / f"{seq.name}_details.csv", delimiter=",", skiprows=1)
-        assert details.shape == (len(seq), 5)
+        assert details.shape == (len(seq), 7)
         assert details[0, 2] == 0 and np.all(details[1:, 2] > 0)  # aberrance after frame 1
+        assert details[0, 5] == 1.0 and details[0, 6] == 0  # the given box: tracking, sure
+        assert np.all((details[:, 5] >= 0) & (details[:, 5] <= 1))
+        assert set(details[:, 6]) <= {0, 1, 2}
         # a worker process gives exactly the boxes of the library run here (4-decimal files)
         frames = [seq.read_frame(i) for i in range(len(seq))]
         local = run_sequence(arcf.create_tracker("arcf-h", **arcf.RELEASE_COMPATIBLE), frames,
