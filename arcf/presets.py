@@ -389,6 +389,9 @@ TUNABLE: Mapping[str, Tunable] = MappingProxyType({
     "state.lost_after": Tunable(int, 1, 10_000),
     "state.resume_above": Tunable(float, 0.0, 1.0),
     "state.update_policy": Tunable(str, choices=("always", "tracking")),
+    "state.reacquire": Tunable(bool),
+    "state.probes": Tunable(int, 1, 16),
+    "state.search_growth": Tunable(float, 0.0, 10.0),
 })
 
 

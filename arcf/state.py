@@ -83,6 +83,16 @@ class StateParams:
     resume_above: float = 0.6
     #: "always" learns every frame (paper, release); "tracking" only while tracking.
     update_policy: UpdatePolicy = "always"
+    #: Re-acquisition (:mod:`arcf.reacquire`): while lost, keep the last trusted model (no
+    #: learning, whatever the policy) and probe more windows around where the target was last
+    #: tracked. Off in the presets, so that their boxes stay the paper's.
+    reacquire: bool = False
+    #: Extra single-scale windows probed per lost frame: the bound on a lost frame's cost
+    #: (measured in docs/benchmarks.md §12).
+    probes: int = 2
+    #: Growth of the searched disc per lost frame, in search windows (from one window at the
+    #: loss; a choice: a 4-window disc after 12 frames).
+    search_growth: float = 0.25
 
     def __post_init__(self) -> None:
         problems = []
@@ -95,6 +105,9 @@ class StateParams:
         if not 0 <= self.lost_below <= self.coast_below <= self.resume_above <= 1:
             problems.append("state thresholds must satisfy 0 <= lost_below <= coast_below "
                             "<= resume_above <= 1")
+        if self.probes < 1 or not (math.isfinite(self.search_growth)
+                                   and self.search_growth >= 0):
+            problems.append("state.probes must be >= 1 and state.search_growth >= 0")
         if self.update_policy not in ("always", "tracking"):
             problems.append("state.update_policy must be 'always' or 'tracking'")
         if problems:
@@ -168,6 +181,18 @@ class TrackMonitor:
             if confidence < p.lost_below or self.coasting_for >= p.lost_after:
                 self.state = TrackState.LOST
         return self.state
+
+    def probe_confidence(self, peak: float, psr: float) -> float:
+        """The confidence of a window probed away from the box (re-acquisition): its PSR and
+        peak against the track's references; its aberrance, which compares a map with the
+        previous frame's at the box, has no meaning there and reads as the reference's."""
+        f = (math.log(max(psr, 0.0) + _EPS),
+             math.log((max(peak, 0.0) + _EPS) / (max(_median(self._peaks), 0.0) + _EPS)), 0.0)
+        return self.confidence(f) if all(map(math.isfinite, f)) else 0.0
+
+    def resume(self) -> None:
+        """The target was found again away from the box: back to ``tracking``."""
+        self.state, self.coasting_for = TrackState.TRACKING, 0
 
     def observe(self, peak: float, psr: float, aberrance: float) -> Assessment:
         """One frame's signals: its features, confidence and the state they lead to (a NaN

@@ -49,6 +49,7 @@ from .fourier import (
     spatial_response,
 )
 from .presets import TrackerParams, make_params
+from .reacquire import Search
 from .scale import DSSTScaleFilter, scale_limits, search_scale_factors
 from .state import TrackMonitor, TrackState
 
@@ -81,6 +82,8 @@ class TrackResult:
     frame_index: int
     confidence: float = 1.0
     state: TrackState = TrackState.TRACKING
+    #: True on the frame where a lost track found its target again (:mod:`arcf.reacquire`).
+    reacquired: bool = False
 
 
 @dataclass(frozen=True, eq=False)
@@ -148,6 +151,12 @@ class FrameState:
     #: position lies in them, cells.
     detection_maps: np.ndarray | None = None
     detection_shift: tuple[float, float] = (0.0, 0.0)
+    #: Where the target was on the last frame judged ``tracking``; while the track is not
+    #: tracking, with re-acquisition on, the appearance model and filter of that frame
+    #: (x̂ᵐᵒᵈᵉˡ, ĝ), and, once lost, the search that probes windows with them.
+    tracked_pos: tuple[float, float] | None = None
+    trusted: tuple[np.ndarray, np.ndarray] | None = None
+    search: Search | None = None
 
 
 @dataclass(frozen=True)
@@ -298,18 +307,34 @@ class ARCFTracker:
 
     def update(self, frame: np.ndarray) -> TrackResult:
         """Track into the next frame: detect, measure the aberrance, judge the track's state,
-        train (every frame, or only while tracking: ``params.state.update_policy``)."""
+        search when lost (re-acquisition on), train (every frame, or only while tracking:
+        ``params.state.update_policy``)."""
         if self._state is None:
             raise NotInitializedError("call init(frame, box) before update(frame)")
-        state, layout = self.state, self.layout
+        state, layout, policy = self.state, self.layout, self.params.state
         image = self._frame_for_update(frame)
         state.frame_index += 1
+        was_lost = self._monitor.state is TrackState.LOST
         response, peak = self._detect(image)
         frob, spectral, target_f = self._aberrance(response)
         psr = peak_to_sidelobe(response, layout.psr_radius)
         verdict = self._monitor.observe(peak, psr, spectral)
-        if self.params.state.update_policy == "always" or verdict.state is TrackState.TRACKING:
+        state_now, confidence, jumped = verdict.state, verdict.confidence, False
+        if policy.reacquire:
+            if state_now is TrackState.TRACKING:
+                state.trusted = state.search = None
+            else:
+                if state.trusted is None:  # the model of the last tracking frame, kept
+                    state.trusted = (state.model_xf.copy(), state.g_f.copy())
+                if state_now is TrackState.LOST:
+                    found = self._reacquire(image, confidence)
+                    if found is not None:
+                        confidence, state_now, jumped = found, TrackState.TRACKING, True
+        if not jumped and (policy.update_policy == "always"
+                           or state_now is TrackState.TRACKING):
             self._train(image, target_f)
+        if state_now is TrackState.TRACKING:
+            state.tracked_pos = state.pos
         return TrackResult(
             box=self._box(),
             peak=peak,
@@ -318,9 +343,64 @@ class ARCFTracker:
             aberrance_release=spectral,
             scale=state.scale_factor / layout.initial_scale,
             frame_index=state.frame_index,
-            confidence=verdict.confidence,
-            state=verdict.state,
+            confidence=confidence,
+            state=state_now,
+            reacquired=was_lost and state_now is TrackState.TRACKING,
         )
+
+    def _reacquire(self, image: np.ndarray, confidence: float) -> float | None:
+        """Probe the search's next windows with the trusted filter (:mod:`arcf.reacquire`);
+        when one is confident enough, and more than the box, move the track there, restore
+        the trusted model and return the probe's confidence. The box itself keeps following
+        the current filter, so a track wrongly judged lost loses nothing."""
+        state, layout, policy = self.state, self.layout, self.params.state
+        assert state.trusted is not None
+        if state.search is None:
+            state.search = Search(
+                centre=state.tracked_pos or state.pos,
+                window=layout.sample_sz * state.scale_factor,
+                image_hw=layout.image_hw, probes=policy.probes,
+                growth=policy.search_growth)
+        best: tuple[float, tuple[float, float], np.ndarray] | None = None
+        for centre in state.search.next_probes():
+            peak, psr, pos, response = self._probe(image, centre, state.trusted[1])
+            c = self._monitor.probe_confidence(peak, psr)
+            if best is None or c > best[0]:
+                best = (c, pos, response)
+        if best is not None and best[0] >= policy.lost_below:
+            # a promising probe sees the target off its centre, where the cosine window dims
+            # it: one more window centred on it tells (so at most probes + 1 per frame)
+            peak, psr, pos, response = self._probe(image, best[1], state.trusted[1])
+            c = self._monitor.probe_confidence(peak, psr)
+            if c > best[0]:
+                best = (c, pos, response)
+        if best is None or best[0] < policy.resume_above or best[0] <= confidence:
+            return None
+        c, pos, response = best
+        state.pos = pos
+        state.model_xf, state.g_f = state.trusted
+        state.m_prev = sfft.fftshift(response)
+        state.p_prev = peak_index(state.m_prev)
+        state.trusted = state.search = None
+        self._monitor.resume()
+        return c
+
+    def _probe(
+        self, image: np.ndarray, centre: tuple[float, float], g_f: np.ndarray
+    ) -> tuple[float, float, tuple[float, float], np.ndarray]:
+        """Filter ``g_f``'s response in one window at the track's scale: its peak, PSR, where
+        the peak puts the target, and the (H, W) map."""
+        p, layout, state = self.params, self.layout, self.state
+        centre = (float(matlab_round(centre[0])), float(matlab_round(centre[1])))
+        patch = self._patches(image, centre, (1.0,))
+        xtf = self._fwd(layout.extractor(patch, layout.color, layout.window, bgr=True))
+        rf = correlate(g_f, xtf)
+        response = spatial_response(rf[0], layout.grid, self._hermitian)[None]
+        disp_r, disp_c, _, peak = newton_peak(response, self._full_spectrum(rf, response),
+                                              p.newton_iterations)
+        pos = (centre[0] + disp_r * layout.cell_px[0] * state.scale_factor,
+               centre[1] + disp_c * layout.cell_px[1] * state.scale_factor)
+        return peak, peak_to_sidelobe(response[0], layout.psr_radius), pos, response[0]
 
     # ------------------------------------------------------------------ configuration
     def _make_layout(
@@ -387,13 +467,8 @@ class ARCFTracker:
             response = spatial_response(rf[0], layout.grid, self._hermitian)[None]
         else:
             response = spatial_response(rf, layout.grid, self._hermitian)
-        if not self._hermitian:
-            full_rf = rf
-        elif p.spectra == "half":  # what the release's Newton reads: the correlation's spectrum
-            full_rf = full_spectrum(rf, layout.grid[1], np.complex128)  # Newton's precision
-        else:  # bit for bit the earlier formulation (the release-compatible BACF)
-            full_rf = sfft.fft2(response)
-        disp_r, disp_c, sind, peak = newton_peak(response, full_rf, p.newton_iterations)
+        disp_r, disp_c, sind, peak = newton_peak(response, self._full_spectrum(rf, response),
+                                                 p.newton_iterations)
 
         factor = float(layout.scale_factors[sind])
         px_per_cell = (layout.cell_px[0] * state.scale_factor * factor,
@@ -417,6 +492,14 @@ class ARCFTracker:
         state.scale_factor = float(np.clip(state.scale_factor * factor, layout.min_scale,
                                            layout.max_scale))
         return response[sind], peak
+
+    def _full_spectrum(self, rf: np.ndarray, response: np.ndarray) -> np.ndarray:
+        """The responses' full spectra, (S, H, W), as Newton's peak refinement reads them."""
+        if not self._hermitian:
+            return rf
+        if self.params.spectra == "half":  # what the release's Newton reads: the correlation's
+            return full_spectrum(rf, self.layout.grid[1], np.complex128)  # Newton's precision
+        return sfft.fft2(response)  # bit for bit the earlier formulation (release BACF)
 
     def _aberrance(
         self, response: np.ndarray

@@ -79,7 +79,8 @@ def message_schema(model: type[Message]) -> dict[str, Any]:
         "x-msgpack": "map",
         "properties": {**envelope, **body["properties"]},
         "required": [*envelope, *body.get("required", [])],
-        "additionalProperties": False,
+        # requests are closed; what the service sends may gain optional fields within v1
+        "additionalProperties": model.model_config.get("extra") != "forbid",
     }
     if "$defs" in body:
         schema["$defs"] = body["$defs"]

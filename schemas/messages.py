@@ -5,8 +5,12 @@ incoming map against them and the JSON Schema files in ``schemas/json`` are gene
 
 Design choices that apply to every model:
 
-* ``extra="forbid"``: a misspelt field is an error, not something silently ignored (a client that
-  sends ``frameseq`` would otherwise start a session on the wrong frame without noticing).
+* ``extra="forbid"`` for what stations send (and instances exchange): a misspelt field is an
+  error, not something silently ignored (a client that sends ``frameseq`` would otherwise start a
+  session on the wrong frame without noticing).
+* What the service sends to stations (:class:`Reply` and the models inside it) is open for
+  additions within a version: a newer service may add optional fields, and a decoder ignores the
+  fields it does not know, so an older station keeps working (``extra="ignore"``).
 * ``frozen=True``: a decoded message is a value; nothing downstream may change what was received.
 * Scalars are *strict*: ``"5"``, ``5.0`` or ``True`` are not a valid ``seq``, a string is not a
   number and bytes are not text. msgpack carries types, so a peer that sends the wrong one has a
@@ -56,11 +60,13 @@ __all__ = [
     "ErrorMessage",
     "Frame",
     "Message",
+    "OpenModel",
     "ParameterInfo",
     "PresetInfo",
     "Presets",
     "PresetsRequest",
     "ReinitRequest",
+    "Reply",
     "Result",
     "ResultBox",
     "ResultStatus",
@@ -70,6 +76,7 @@ __all__ = [
     "Status",
     "StatusRequest",
     "StopRequest",
+    "TrackState",
     "WireModel",
 ]
 
@@ -164,6 +171,19 @@ class Encoding(str, Enum):
     def channels(self) -> int | None:
         """Bytes per pixel of a raw encoding, ``None`` for compressed ones."""
         return {Encoding.BGR8: 3, Encoding.GRAY8: 1}.get(self)
+
+
+class TrackState(str, Enum):
+    """What the tracker makes of its own response (the library's ``arcf.state.TrackState``,
+    spelt out here so that a station needs only the schemas)."""
+
+    #: The confidence is high enough: the box is the target's.
+    TRACKING = "tracking"
+    #: The confidence fell: the target is probably hidden or blurred; the box is the filter's
+    #: best guess and the appearance model may not be learning.
+    COASTING = "coasting"
+    #: The tracker no longer believes it sees the target (re-acquisition, when on, searches).
+    LOST = "lost"
 
 
 class ResultStatus(str, Enum):
@@ -338,11 +358,26 @@ class WireModel(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
 
+class OpenModel(WireModel):
+    """Base of the models the service sends to stations: a newer service may add optional
+    fields within v1, and decoding ignores the ones it does not know (see the module
+    docstring)."""
+
+    model_config = ConfigDict(extra="ignore", frozen=True)
+
+
 class Message(WireModel):
     """A top-level message: has a wire ``type`` written in the envelope by the codec."""
 
     #: Wire name of the message kind (the envelope's ``type``).
     type: ClassVar[str]
+
+
+class Reply(Message):
+    """A top-level message the service sends to stations: open for additions like
+    :class:`OpenModel`."""
+
+    model_config = ConfigDict(extra="ignore", frozen=True)
 
 
 class Frame(Message):
@@ -470,7 +505,7 @@ class StatusRequest(Message):
         "finding the sessions it left behind).")
 
 
-class Ack(Message):
+class Ack(Reply):
     """Positive reply to ``start``/``reinit``/``stop``; carries the ids the request resolved to."""
 
     type: ClassVar[str] = "ack"
@@ -481,7 +516,7 @@ class Ack(Message):
     message: StrictStr
 
 
-class ErrorMessage(Message):
+class ErrorMessage(Reply):
     """Negative reply to a request, or a report about a stream's frames on its ``errors`` key.
 
     ``code`` is machine-readable; ``message`` is for humans. The ids say what the error is about,
@@ -498,7 +533,7 @@ class ErrorMessage(Message):
     frame_seq: NonNegInt | None = None
 
 
-class Result(Message):
+class Result(Reply):
     """The tracker's output for one frame of one session.
 
     Floats may be NaN (a msgpack float) when a value does not exist, e.g. on ``status="error"``:
@@ -519,6 +554,17 @@ class Result(Message):
     aberrance: AnyFloat = Field(description="Aberrance of the response map vs the previous one.")
     aberrance_release: AnyFloat = Field(description="Aberrance as computed by the release code.")
     scale: AnyFloat = Field(description="Current scale factor of the target.")
+    confidence: AnyFloat | None = Field(
+        default=None, description="Estimated probability, in [0, 1], that the box overlaps the "
+        "target at all (IoU > 0), from the response's peak, PSR and aberrance (calibrated on "
+        "real sequences, see the README's Track state). 1 on the frame a box was given. Absent "
+        "on results without a box (error, stopped).")
+    track_state: TrackState | None = Field(
+        default=None, description="tracking, coasting (target probably hidden, the box is a "
+        "guess) or lost. Absent on results without a box (error, stopped).")
+    reacquired: StrictBool | None = Field(
+        default=None, description="True on the frame where a lost track found its target "
+        "again (re-acquisition); absent otherwise.")
     status: ResultStatus
     dropped: NonNegInt = Field(
         description="Frames of this stream skipped since the session's previous result."
@@ -537,7 +583,7 @@ class Result(Message):
 SessionState = Literal["waiting", "tracking"]
 
 
-class SessionInfo(WireModel):
+class SessionInfo(OpenModel):
     """One running session, as listed in ``status`` (not a top-level message)."""
 
     session_id: Id
@@ -577,7 +623,7 @@ class SessionSpec(Message):
     last_box: Box | None = Field(default=None, description="Box of the last result.")
 
 
-class Status(Message):
+class Status(Reply):
     """Reply to ``status_request``: what the service runs (every instance, when several share
     the streams; ``instance_id`` is the one that answered)."""
 
@@ -602,7 +648,7 @@ class PresetsRequest(Message):
     request_id: Id = Field(description="Client-chosen; echoed in the reply.")
 
 
-class ParameterInfo(WireModel):
+class ParameterInfo(OpenModel):
     """One override a ``start`` may carry (not a top-level message)."""
 
     name: OverrideKey
@@ -612,14 +658,14 @@ class ParameterInfo(WireModel):
     choices: list[StrictStr] | None = Field(default=None, description="The allowed values.")
 
 
-class PresetInfo(WireModel):
+class PresetInfo(OpenModel):
     """One preset and the value of each override in it (not a top-level message)."""
 
     name: Id
     values: dict[OverrideKey, OverrideValue]
 
 
-class Presets(Message):
+class Presets(Reply):
     """Reply to ``presets_request``: the presets and every override with its declared type and
     range, as the service enforces them (a value outside is refused, ``invalid_parameter``)."""
 

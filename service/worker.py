@@ -549,7 +549,11 @@ class Worker:
                 peak=r.peak if r else nan, psr=r.psr if r else nan,
                 aberrance=r.aberrance if r else nan,
                 aberrance_release=r.aberrance_release if r else nan,
-                scale=r.scale if r else nan, status=status, dropped=dropped, message=message,
+                scale=r.scale if r else nan,
+                confidence=r.confidence if r else None,
+                track_state=r.state.value if r else None,
+                reacquired=True if r and r.reacquired else None,
+                status=status, dropped=dropped, message=message,
                 code=error_code, received_ts_ns=received_ns, decode_s=decode_s,
                 track_s=track_s, published_ts_ns=published,
             )

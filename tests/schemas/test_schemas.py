@@ -41,6 +41,7 @@ from schemas import (
     Status,
     StatusRequest,
     StopRequest,
+    TrackState,
     UnexpectedType,
     UnknownType,
     UnsupportedVersion,
@@ -355,6 +356,40 @@ def test_extra_field_is_invalid_request() -> None:
     assert_error(
         packed({**FRAME, "version": 1}, "frame"), InvalidMessage, ErrorCode.INVALID_REQUEST
     )
+
+
+def test_what_the_service_sends_may_gain_fields_that_older_stations_ignore() -> None:
+    """v1's compatibility rule: a newer service adds optional fields to what it sends; a
+    station decodes the rest. Requests stay closed (a misspelt field is an error)."""
+    for kind in ("result", "ack", "error", "status", "presets"):
+        raw = {**wire(samples()[kind]), "added_in_a_later_release": [1, "x"]}
+        assert decode(msgpack.packb(raw)) == samples()[kind]
+    raw = wire(samples()["status"])
+    raw["sessions"][0]["added_later"] = 1  # nested models of a reply too
+    assert decode(msgpack.packb(raw)) == samples()["status"]
+    for kind in ("frame", "start", "reinit", "stop", "status_request", "presets_request",
+                 "session_spec"):
+        raw = {**wire(samples()[kind]), "added_in_a_later_release": 1}
+        with pytest.raises(InvalidMessage):
+            decode(msgpack.packb(raw))
+
+
+def test_result_track_state_fields() -> None:
+    result = samples()["result"].model_copy(
+        update={"confidence": 0.83, "track_state": TrackState.COASTING, "reacquired": True})
+    back = decode(encode(result), Result)
+    assert (back.confidence, back.track_state, back.reacquired) == (
+        0.83, TrackState.COASTING, True)
+    # absent on a service that predates them, and on results without a box
+    assert "confidence" not in wire(samples()["result"])
+    assert decode(encode(samples()["result"]), Result).track_state is None
+    for bad in ({"track_state": "searching"}, {"reacquired": 1}, {"confidence": "0.5"}):
+        with pytest.raises(InvalidMessage):
+            decode(msgpack.packb({**wire(samples()["result"]), **bad}))
+    # the wire's states are the library's
+    from arcf.state import TrackState as LibraryState
+
+    assert [s.value for s in TrackState] == [s.value for s in LibraryState]
 
 
 @pytest.mark.parametrize("field", ["request_id", "stream_id", "session_id", "preset"])
@@ -688,7 +723,8 @@ def test_export_files_shape(tmp_path: Path) -> None:
         assert schema["properties"]["type"]["const"] == msg_type
         assert schema["required"][:2] == ["v", "type"]
         assert list(schema["properties"])[:2] == ["v", "type"]
-        assert schema["additionalProperties"] is False
+        # requests are closed; what the service sends is open for additions within v1
+        assert schema["additionalProperties"] is (model.model_config["extra"] == "ignore")
     frame = json.loads((tmp_path / "frame.schema.json").read_text())
     payload = frame["properties"]["payload"]
     assert payload["x-msgpack"] == "bin" and "base64" in payload["description"]
