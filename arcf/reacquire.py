@@ -11,7 +11,8 @@ through it nearest first, so the cost of a lost frame is bounded by ``probes`` e
 single-scale windows, whatever the frame's size.
 
 A probe wins when its response gives a confidence at or above the state machine's
-``resume_above`` and above the box's own: the box jumps there, the track is ``tracking`` again
+``resume_above`` and above the box's own by ``reacquire_margin``: the box jumps there, the
+track is ``tracking`` again
 and the result says ``reacquired``.
 """
 

@@ -93,6 +93,11 @@ class StateParams:
     #: Growth of the searched disc per lost frame, in search windows (from one window at the
     #: loss; a choice: a 4-window disc after 12 frames).
     search_growth: float = 0.25
+    #: A probe moves the box only if its confidence is at least ``resume_above`` and beats the
+    #: box's own by this much: jumping away is riskier than resuming in place. A choice made on
+    #: the shared sequences (2026-11-26, ``benchmarks/reacquire.py``): the wrong jumps seen
+    #: without it (onto a similar animal, a rider's background) won by 0.06 to 0.2.
+    reacquire_margin: float = 0.3
 
     def __post_init__(self) -> None:
         problems = []
@@ -108,6 +113,8 @@ class StateParams:
         if self.probes < 1 or not (math.isfinite(self.search_growth)
                                    and self.search_growth >= 0):
             problems.append("state.probes must be >= 1 and state.search_growth >= 0")
+        if not 0 <= self.reacquire_margin <= 1:
+            problems.append("state.reacquire_margin must be in [0, 1]")
         if self.update_policy not in ("always", "tracking"):
             problems.append("state.update_policy must be 'always' or 'tracking'")
         if problems:

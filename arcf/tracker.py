@@ -350,7 +350,7 @@ class ARCFTracker:
 
     def _reacquire(self, image: np.ndarray, confidence: float) -> float | None:
         """Probe the search's next windows with the trusted filter (:mod:`arcf.reacquire`);
-        when one is confident enough, and more than the box, move the track there, restore
+        when one is confident enough, and clearly more than the box, move the track there, restore
         the trusted model and return the probe's confidence. The box itself keeps following
         the current filter, so a track wrongly judged lost loses nothing."""
         state, layout, policy = self.state, self.layout, self.params.state
@@ -374,7 +374,8 @@ class ARCFTracker:
             c = self._monitor.probe_confidence(peak, psr)
             if c > best[0]:
                 best = (c, pos, response)
-        if best is None or best[0] < policy.resume_above or best[0] <= confidence:
+        if (best is None or best[0] < policy.resume_above
+                or best[0] < confidence + policy.reacquire_margin):
             return None
         c, pos, response = best
         state.pos = pos

@@ -52,10 +52,14 @@ def _clip(seq, data: list[bytes], box=None) -> Clip:  # type: ignore[no-untyped-
     return Clip(seq.name, tuple(box or seq.init_box), tuple(data))
 
 
-def _offline(preset: str, data: list[bytes], box) -> np.ndarray:
+def _offline_run(preset: str, data: list[bytes], box) -> arcf.SequenceRun:
     """The library alone on the same bytes, decoded as a worker decodes them."""
     frames = (decode_compressed(d) for d in data)
-    return arcf.run_sequence(arcf.create_tracker(preset), frames, box).boxes
+    return arcf.run_sequence(arcf.create_tracker(preset), frames, box)
+
+
+def _offline(preset: str, data: list[bytes], box) -> np.ndarray:
+    return _offline_run(preset, data, box).boxes
 
 
 def _lockstep(client, streams: dict[str, tuple[Clip, Sequence[str]]]) -> Fleet:
@@ -93,8 +97,14 @@ def test_results_equal_the_library_offline(service, frames) -> None:
     assert [r.frame_seq for r in got] == list(range(len(data)))
     assert got[0].status == "initialized" and all(r.status == "tracking" for r in got[1:])
     assert all(r.dropped == 0 for r in got)
-    np.testing.assert_allclose([r.box for r in got], _offline("arcf-h", data, seq.init_box),
-                               atol=1e-9)
+    offline = _offline_run("arcf-h", data, seq.init_box).results
+    np.testing.assert_allclose([r.box for r in got], [r.box for r in offline], atol=1e-9)
+    # the track state, as the library judges it
+    assert [r.track_state for r in got] == [r.state.value for r in offline]
+    np.testing.assert_allclose([r.confidence for r in got], [r.confidence for r in offline],
+                               atol=1e-12)
+    assert got[0].confidence == 1.0 and all(0 <= r.confidence <= 1 for r in got)
+    assert all(r.reacquired is None for r in got)  # never lost here: no event
     for r in got:
         assert r.capture_ts_ns <= r.received_ts_ns <= r.published_ts_ns
         assert r.track_s > 0 and r.decode_s > 0
@@ -399,6 +409,7 @@ def test_limits_stale_frames_and_bombs_are_refused_counted_and_harmless(frames, 
             client.publish_frame("lim", data=png_bomb(4000, 4000), encoding="png", seq=1)
             (bomb,) = _collect(results, 1, timeout=30)
             assert bomb.status == "error" and "pixels" in (bomb.message or "")
+            assert bomb.track_state is None and bomb.confidence is None  # no box, no state
             # a duplicate and an out-of-order frame: refused, not tracked
             client.publish_frame("lim", data=data[1], seq=1)
             client.publish_frame("lim", data=data[0], seq=0)
