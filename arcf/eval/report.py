@@ -43,6 +43,7 @@ if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
     from arcf.eval.failure import CurvePoint
+    from arcf.tracker import TrackResult
 
 __all__ = [
     "MAP_DIFF_SUFFIX",
@@ -56,6 +57,7 @@ __all__ = [
     "plot_map_difference",
     "plot_precision",
     "plot_success",
+    "plot_track_signals",
     "ranked",
     "read_map_difference",
     "table2_markdown",
@@ -237,6 +239,52 @@ def plot_failure_curve(curve: Sequence[CurvePoint], path: str | os.PathLike[str]
     ax.set_ylim(0, 1.02)
     ax.set_title(title or "failure detection (labels: confidence threshold)", fontsize=9)
     ax.grid(True, alpha=0.3)
+    return _save(fig, path, dpi)
+
+
+def plot_track_signals(runs: Mapping[str, Sequence[TrackResult]], overlap: Mapping[str, np.ndarray],
+                       path: str | os.PathLike[str], title: str = "",
+                       *, span: tuple[int, int] | None = None, shade: tuple[int, int] | None = None,
+                       dpi: int = _DPI) -> Path:
+    """What the tracker tells around a loss: per run (label -> its per-frame results), the
+    overlap with the ground truth and the confidence, then PSR and the release's aberrance;
+    the frames a run was coasting or lost shaded, each ``reacquired`` marked. ``span`` limits
+    the frames shown, ``shade`` marks an interval (e.g. an occlusion). Returns the PNG path."""
+    from arcf.state import TrackState
+
+    fig = _new_figure(7.0, 5.6)
+    axes = [fig.add_subplot(4, 1, i + 1) for i in range(4)]
+    lo, hi = span or (0, max(len(r) for r in runs.values()))
+    for i, (label, results) in enumerate(runs.items()):
+        color = _COLORS[i % len(_COLORS)]
+        frames = np.arange(len(results))[lo:hi]
+        part = results[lo:hi]
+        axes[0].plot(frames, overlap[label][lo:hi], color=color, label=label)
+        axes[1].plot(frames, [r.confidence for r in part], color=color)
+        axes[2].plot(frames, [r.psr for r in part], color=color)
+        axes[3].plot(frames, [r.aberrance_release for r in part], color=color)
+        for k, r in zip(frames, part, strict=True):
+            if r.state is not TrackState.TRACKING:  # a strip per run under the overlap
+                axes[0].axvspan(k - 0.5, k + 0.5, ymin=0.04 * i, ymax=0.04 * (i + 1),
+                                color="#d62728" if r.state is TrackState.LOST else "#ffbf00",
+                                linewidth=0)
+            if r.reacquired:
+                for ax in axes:
+                    ax.axvline(k, color=color, linestyle="--", linewidth=1)
+    names = ("overlap (IoU)", "confidence", "PSR", "aberrance")
+    for ax, name in zip(axes, names, strict=True):
+        ax.set_ylabel(name, fontsize=8)
+        ax.grid(True, alpha=0.3)
+        ax.tick_params(labelsize=7)
+        ax.set_xlim(lo, hi - 1)
+        if shade:
+            ax.axvspan(shade[0] - 0.5, shade[1] - 0.5, color="0.85", zorder=0)
+    axes[0].set_ylim(0, 1)
+    axes[1].set_ylim(0, 1.02)
+    axes[0].legend(fontsize="small", loc="upper right", framealpha=0.85)
+    axes[-1].set_xlabel("frame (strips: coasting amber, lost red; dashed: reacquired)",
+                        fontsize=8)
+    axes[0].set_title(title, fontsize=9)
     return _save(fig, path, dpi)
 
 
