@@ -46,8 +46,10 @@ def main(argv: list[str] | None = None) -> int:
         g = gt[r.frame_seq]
         err = float(np.hypot(x + w / 2 - g[0] - g[2] / 2, y + h / 2 - g[1] - g[3] / 2))
         errors.append(err)
+        state = r.track_state.value if r.track_state else "-"
         print(f"frame {r.frame_seq:4d} {got.status:13s} box ({x:7.1f}, {y:7.1f}, {w:6.1f}, "
-              f"{h:6.1f}) peak {r.peak:.3f} psr {r.psr:5.1f} aberrance {r.aberrance:.4f} "
+              f"{h:6.1f}) {state:8s} confidence {r.confidence or 0:.2f} "
+              f"psr {r.psr:5.1f} aberrance {r.aberrance:.4f} "
               f"dropped {r.dropped} error {err:5.1f} px", flush=True)
 
     print(f"starting arcf-service on tcp/127.0.0.1:{args.port}", flush=True)

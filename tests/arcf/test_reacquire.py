@@ -5,6 +5,8 @@ lost."""
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from typing import Any
 
 import cv2
 import numpy as np
@@ -50,20 +52,6 @@ def test_search_starts_where_the_target_was_and_grows_to_the_whole_frame() -> No
     assert len(seen) == search.candidates  # the whole frame, eventually
 
 
-def _scene(background: np.ndarray, k: int) -> tuple[np.ndarray, tuple[int, int, int, int] | None]:
-    """A textured target crossing a real background, hidden for frames 30-39, then back far
-    outside the search window it left (a camera pan, an occlusion while it moved)."""
-    rng = np.random.default_rng(3)
-    target = cv2.resize(rng.integers(0, 256, (6, 6, 3), dtype=np.uint8), (36, 36),
-                        interpolation=cv2.INTER_NEAREST)
-    frame = background.copy()
-    if 30 <= k < 40:
-        return frame, None
-    x, y = (60 + 2 * k, 80) if k < 30 else (330 + k % 3, 170)
-    frame[y:y + 36, x:x + 36] = target
-    return frame, (x + 1, y + 1, 36, 36)
-
-
 def _iou(a: tuple[float, ...], b: tuple[float, ...]) -> float:
     ix = max(0.0, min(a[0] + a[2], b[0] + b[2]) - max(a[0], b[0]))
     iy = max(0.0, min(a[1] + a[3], b[1] + b[3]) - max(a[1], b[1]))
@@ -71,12 +59,10 @@ def _iou(a: tuple[float, ...], b: tuple[float, ...]) -> float:
     return inter / (a[2] * a[3] + b[2] * b[3] - inter)
 
 
-@needs_data
 @pytest.mark.parametrize("preset", ["arcf-hc", "arcf-h", "bacf"])
 def test_a_lost_target_is_found_again_far_from_where_it_vanished(
-        preset: str, monkeypatch: pytest.MonkeyPatch) -> None:
-    background = cv2.resize(cv2.imread(str(BOAT1 / "000001.jpg")), (480, 270),
-                            interpolation=cv2.INTER_AREA)
+        preset: str, monkeypatch: pytest.MonkeyPatch,
+        hidden_target_scene: Callable[[int], Any]) -> None:
     probes: list[int] = []
     real_probe = ARCFTracker._probe
 
@@ -88,15 +74,15 @@ def test_a_lost_target_is_found_again_far_from_where_it_vanished(
     runs = {}
     for reacquire in (False, True):
         tracker = arcf.create_tracker(preset, state={"reacquire": reacquire})
-        frame, box = _scene(background, 0)
+        frame, box = hidden_target_scene(0)
         tracker.init(frame, box)
         results = []
         for k in range(1, 70):
             probes.append(0)
-            results.append(tracker.update(_scene(background, k)[0]))
+            results.append(tracker.update(hidden_target_scene(k)[0]))
         runs[reacquire] = results
     plain, found = runs[False], runs[True]
-    target = _scene(background, 69)[1]
+    target = hidden_target_scene(69)[1]
     assert target is not None
     # the plain tracker loses it for good, and says so
     assert plain[-1].state is TrackState.LOST and _iou(plain[-1].box, target) == 0
@@ -105,7 +91,7 @@ def test_a_lost_target_is_found_again_far_from_where_it_vanished(
     events = [k for k, r in enumerate(found, start=1) if r.reacquired]
     assert events and 40 <= events[0] <= 60, events
     assert found[events[0] - 1].state is TrackState.TRACKING
-    assert all(_iou(r.box, _scene(background, k)[1]) > 0.5  # type: ignore[arg-type]
+    assert all(_iou(r.box, hidden_target_scene(k)[1]) > 0.5  # type: ignore[arg-type]
                for k, r in enumerate(found, start=1) if k >= events[0])
     # a bounded number of windows per frame: probes + 1 (the refinement), only while lost
     assert max(probes) <= StateParams().probes + 1
