@@ -16,7 +16,7 @@ import threading
 import time
 import uuid
 from collections.abc import Callable, Iterator, Sequence
-from typing import Any
+from typing import Any, Generic, TypeVar
 
 import cv2
 import numpy as np
@@ -27,6 +27,7 @@ from schemas import (
     ErrorMessage,
     Frame,
     KeySpace,
+    Message,
     Presets,
     PresetsRequest,
     ReinitRequest,
@@ -41,6 +42,8 @@ from schemas import (
 
 from .transport import open_session
 
+M = TypeVar("M", bound=Message)
+
 
 class ServiceError(RuntimeError):
     """The service answered a request with an error (``code`` says which)."""
@@ -51,37 +54,41 @@ class ServiceError(RuntimeError):
         self.error = error
 
 
-class ResultStream:
-    """Results of one stream (or one session), received by a callback or iterated."""
+class MessageStream(Generic[M]):
+    """Messages of one key expression (results of a stream or a session, frames of a stream),
+    received by a callback or iterated. What does not validate is counted and skipped."""
 
     def __init__(self, client: TrackingClient, key: str,
-                 callback: Callable[[Result], None] | None, maxsize: int) -> None:
-        self._queue: queue.Queue[Result] = queue.Queue(maxsize=maxsize)
+                 callback: Callable[[M], None] | None, maxsize: int,
+                 expected: type[M]) -> None:
+        self._queue: queue.Queue[M] = queue.Queue(maxsize=maxsize)
         self.dropped = 0
         self.malformed = 0
+        limit = client.max_payload
 
         def on_sample(sample: Any) -> None:
             try:
-                result = decode(sample.payload.to_bytes(), expected=Result)
+                message = decode(sample.payload.to_bytes(), expected=expected,
+                                 max_payload=limit)
             except ValueError:
                 self.malformed += 1
                 return
             if callback is not None:
-                callback(result)
+                callback(message)
                 return
             try:
-                self._queue.put_nowait(result)
+                self._queue.put_nowait(message)
             except queue.Full:
                 self.dropped += 1
 
         self._sub = client.session.declare_subscriber(key, on_sample)
 
-    def get(self, timeout: float | None = None) -> Result:
-        """The next result; raises ``queue.Empty`` after ``timeout`` seconds."""
+    def get(self, timeout: float | None = None) -> M:
+        """The next message; raises ``queue.Empty`` after ``timeout`` seconds."""
         return self._queue.get(timeout=timeout)
 
-    def iter(self, timeout: float = 1.0) -> Iterator[Result]:
-        """Results until none arrives for ``timeout`` seconds."""
+    def iter(self, timeout: float = 1.0) -> Iterator[M]:
+        """Messages until none arrives for ``timeout`` seconds."""
         while True:
             try:
                 yield self._queue.get(timeout=timeout)
@@ -90,6 +97,10 @@ class ResultStream:
 
     def close(self) -> None:
         self._sub.undeclare()
+
+
+#: Results of a stream or a session (what ``TrackingClient.results`` returns).
+ResultStream = MessageStream[Result]
 
 
 class TrackingClient:
@@ -239,7 +250,15 @@ class TrackingClient:
                 maxsize: int = 10000) -> ResultStream:
         key = (self.keys.results(stream_id, session_id) if session_id
                else self.keys.results_of_stream(stream_id))
-        return ResultStream(self, key, callback, maxsize)
+        return MessageStream(self, key, callback, maxsize, Result)
+
+    def frames(self, stream_id: str, callback: Callable[[Frame], None] | None = None,
+               maxsize: int = 8) -> MessageStream[Frame]:
+        """Watch a stream's frames as the service receives them (whoever publishes them):
+        adapters learn a stream's frame size and numbering from it. Without a callback, frames
+        wait in a queue of ``maxsize``; while it is full, newer ones are dropped (counted in
+        ``dropped``)."""
+        return MessageStream(self, self.keys.frames(stream_id), callback, maxsize, Frame)
 
     def close(self) -> None:
         for pub in self._publishers.values():

@@ -16,9 +16,12 @@ ROOT = Path(__file__).resolve().parent.parent
 
 #: package -> the top-level names (or dotted prefixes) it must never import
 FORBIDDEN = {
-    "arcf": ("schemas", "service", "loadtools"),
-    "schemas": ("arcf", "service", "loadtools"),
-    "service": ("loadtools", "arcf.eval", "matplotlib"),
+    "arcf": ("schemas", "service", "loadtools", "adapters"),
+    "schemas": ("arcf", "service", "loadtools", "adapters"),
+    "service": ("loadtools", "arcf.eval", "matplotlib", "adapters", "pymavlink"),
+    # an adapter is a client of the service: its SDK and the schemas, not its internals
+    "adapters": ("loadtools", "arcf", "matplotlib", "service.worker", "service.app",
+                 "service.control"),
 }
 
 

@@ -1,0 +1,562 @@
+"""MAVLink: the tracking service as one MAVLink camera per video stream.
+
+Ground stations (QGroundControl's click-and-drag on the video, MAVProxy's ``camtrack``, Mission
+Planner) ask a camera to track with MAVLink's camera protocol, and ArduPilot forwards those
+commands to a component that advertises tracking. :class:`MavlinkCameras` is that component,
+for each configured stream of the service:
+
+* it sends a ``HEARTBEAT`` per camera (``MAV_TYPE_CAMERA``) and answers
+  ``MAV_CMD_REQUEST_MESSAGE`` for ``CAMERA_INFORMATION`` (flags ``HAS_TRACKING_POINT`` and
+  ``HAS_TRACKING_RECTANGLE``, the stream's resolution) and for the tracking status;
+* ``MAV_CMD_CAMERA_TRACK_RECTANGLE`` and ``MAV_CMD_CAMERA_TRACK_POINT`` start a session of the
+  service on the stream, or re-initialise the camera's session; coordinates are normalised to
+  [0, 1] and converted with the size of the stream's latest frame (a point and its radius
+  become a square box); ``MAV_CMD_CAMERA_STOP_TRACKING`` stops it;
+* every command is acknowledged (``COMMAND_ACK``): accepted; denied when the stream has no
+  frame yet or the box is unusable; failed when the service refuses; a reason goes along in a
+  ``STATUSTEXT``;
+* ``CAMERA_TRACKING_IMAGE_STATUS`` is streamed at the interval the station asks for
+  (``MAV_CMD_SET_MESSAGE_INTERVAL``), mapped from the track state: tracking → ACTIVE,
+  coasting → ACTIVE | COASTING, lost → ERROR, no session → IDLE;
+* a station's heartbeats are watched: when they stop for ``link_timeout_s`` the link is
+  reported lost (the sessions go on, as a camera keeps tracking without its station), and
+  found again when they come back.
+
+MAVLink 2 only (these message ids need it): ``MAVLINK20=1`` is set before pymavlink loads.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import logging
+import math
+import os
+import queue
+import signal
+import threading
+import time
+from collections import Counter
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+os.environ.setdefault("MAVLINK20", "1")
+
+from pymavlink import mavutil
+
+from schemas import ErrorCode, Frame, Result, ResultStatus, TrackState
+from service.client import ServiceError, TrackingClient
+from service.decoding import decode_compressed
+
+log = logging.getLogger("arcf.mavlink")
+mav = mavutil.mavlink
+
+#: MAV_COMP_ID_CAMERA: the first of the six camera component ids (100-105)
+FIRST_CAMERA_COMPONENT = mav.MAV_COMP_ID_CAMERA
+#: commands this component acts on
+TRACK_COMMANDS = (mav.MAV_CMD_CAMERA_TRACK_POINT, mav.MAV_CMD_CAMERA_TRACK_RECTANGLE,
+                  mav.MAV_CMD_CAMERA_STOP_TRACKING)
+#: fastest status stream a station may ask for (100 Hz)
+MIN_INTERVAL_S = 0.01
+
+
+@dataclass(frozen=True)
+class CameraConfig:
+    """One MAVLink camera: the service's stream it shows and its component id."""
+
+    stream_id: str
+    component_id: int
+
+
+@dataclass
+class _Camera:
+    config: CameraConfig
+    encoder: Any  # a pymavlink MAVLink encoder sending as this component
+    number: int  # 1-based, as the track commands' "camera id" parameter counts cameras
+    last_frame: Frame | None = None
+    session_id: str | None = None
+    mode: int = mav.CAMERA_TRACKING_MODE_NONE
+    result: Result | None = None
+    status_interval_s: float = 0.1
+    next_status: float = 0.0
+
+
+@dataclass
+class Box:
+    """A box in the frame's 1-based pixel coordinates (the service's convention)."""
+
+    x: float
+    y: float
+    w: float
+    h: float
+
+
+class Denied(Exception):
+    """A command that cannot be carried out as given (``MAV_RESULT_DENIED``)."""
+
+
+def frame_size(frame: Frame) -> tuple[int, int]:
+    """(width, height) of a stream's frame: declared, or read from the image itself."""
+    if frame.width and frame.height:
+        return frame.width, frame.height
+    image = decode_compressed(frame.payload)
+    return image.shape[1], image.shape[0]
+
+
+def rectangle_box(top_x: float, top_y: float, bottom_x: float, bottom_y: float,
+                  size: tuple[int, int]) -> Box:
+    """``MAV_CMD_CAMERA_TRACK_RECTANGLE``'s normalised corners (0 = left/top) as a box."""
+    values = (top_x, top_y, bottom_x, bottom_y)
+    if not all(math.isfinite(v) and 0.0 <= v <= 1.0 for v in values):
+        raise Denied("rectangle corners must be within [0, 1]")
+    if bottom_x <= top_x or bottom_y <= top_y:
+        raise Denied("rectangle's bottom-right must be below and right of its top-left")
+    w, h = size
+    box = Box(top_x * w + 1.0, top_y * h + 1.0, (bottom_x - top_x) * w, (bottom_y - top_y) * h)
+    if box.w < 2 or box.h < 2:
+        raise Denied(f"rectangle is {box.w:.1f}x{box.h:.1f} px, below 2x2")
+    return box
+
+
+def point_box(x: float, y: float, radius: float, size: tuple[int, int]) -> Box:
+    """``MAV_CMD_CAMERA_TRACK_POINT``: the square of side 2 radius (a share of the image
+    width) around the point, cut to the frame."""
+    if not all(math.isfinite(v) and 0.0 <= v <= 1.0 for v in (x, y, radius)):
+        raise Denied("point and radius must be within [0, 1]")
+    w, h = size
+    half = radius * w
+    if half < 1:
+        raise Denied(f"radius {radius:g} is {half:.1f} px, below 1")
+    cx, cy = x * w, y * h
+    left, top = max(cx - half, 0.0), max(cy - half, 0.0)
+    right, bottom = min(cx + half, float(w)), min(cy + half, float(h))
+    if right - left < 2 or bottom - top < 2:
+        raise Denied("the point's square is outside the frame")
+    return Box(left + 1.0, top + 1.0, right - left, bottom - top)
+
+
+def tracking_status(result: Result | None) -> int:
+    """``CAMERA_TRACKING_STATUS_FLAGS`` of a camera whose latest result is ``result``."""
+    if result is None:
+        return mav.CAMERA_TRACKING_STATUS_FLAGS_IDLE
+    if result.status == ResultStatus.ERROR or result.track_state is None:
+        return mav.CAMERA_TRACKING_STATUS_FLAGS_ERROR
+    if result.track_state is TrackState.TRACKING:
+        return mav.CAMERA_TRACKING_STATUS_FLAGS_ACTIVE
+    if result.track_state is TrackState.COASTING:
+        return (mav.CAMERA_TRACKING_STATUS_FLAGS_ACTIVE
+                | mav.CAMERA_TRACKING_STATUS_FLAGS_COASTING)
+    return mav.CAMERA_TRACKING_STATUS_FLAGS_ERROR
+
+
+def _padded(text: str, size: int) -> list[int]:
+    raw = text.encode()[:size]
+    return list(raw) + [0] * (size - len(raw))
+
+
+class MavlinkCameras:
+    """One MAVLink camera component per stream, in front of a tracking service.
+
+    ``client`` talks to the service; ``connection`` is a pymavlink connection string
+    (``udpin:0.0.0.0:14540``, ``udpout:192.168.1.10:14550``, ``tcp:127.0.0.1:5760``,
+    ``/dev/ttyUSB0,57600``...). Call :meth:`run` (blocking, until :meth:`close` or the event
+    is set) or :meth:`start` (in a thread). ``counts`` tallies what happened (commands by
+    result, link losses, malformed packets) for tests and logs.
+    """
+
+    def __init__(self, client: TrackingClient, connection: str,
+                 cameras: Sequence[CameraConfig], *, system_id: int = 1,
+                 preset: str = "arcf-hc", overrides: Mapping[str, Any] | None = None,
+                 status_interval_s: float = 0.1, heartbeat_s: float = 1.0,
+                 link_timeout_s: float = 5.0) -> None:
+        if not cameras:
+            raise ValueError("at least one camera (stream) is needed")
+        ids = [c.component_id for c in cameras]
+        if len(set(ids)) != len(ids) or not all(1 <= i <= 255 for i in ids):
+            raise ValueError(f"component ids must be distinct, in 1..255: {ids}")
+        self.client = client
+        self.preset = preset
+        self.overrides = dict(overrides or {})
+        self.heartbeat_s = heartbeat_s
+        self.link_timeout_s = link_timeout_s
+        self.counts: Counter[str] = Counter()
+        self.conn = mavutil.mavlink_connection(connection, source_system=system_id,
+                                               source_component=ids[0], autoreconnect=True)
+        self._send_lock = threading.Lock()
+        self._state_lock = threading.Lock()
+        self._t0 = time.monotonic()
+        self.cameras = [
+            _Camera(c, mav.MAVLink(self.conn, srcSystem=system_id, srcComponent=c.component_id),
+                    number=i + 1, status_interval_s=status_interval_s)
+            for i, c in enumerate(cameras)]
+        self.conn.mav.robust_parsing = True  # bad bytes come back as BAD_DATA, counted
+        #: frame size per stream, read at the last track command (for frames that do not
+        #: declare theirs)
+        self._sizes: dict[str, tuple[int, int]] = {}
+        self._by_component = {c.config.component_id: c for c in self.cameras}
+        self._watches = []
+        for cam in self.cameras:
+            self._watches.append(client.frames(cam.config.stream_id,
+                                               callback=self._frame_seen(cam)))
+            self._watches.append(client.results(cam.config.stream_id,
+                                                callback=self._result_seen(cam)))
+        self._commands: queue.Queue[tuple[_Camera, Any] | None] = queue.Queue(maxsize=64)
+        self._pending: set[tuple[int, int, tuple[float, ...]]] = set()
+        self._stop = threading.Event()
+        self._threads: list[threading.Thread] = []
+        self._next_heartbeat = 0.0
+        self._last_station: float | None = None
+        self.link_up = False
+
+    # ------------------------------------------------------------------ service side
+    def _frame_seen(self, cam: _Camera) -> Any:
+        def seen(frame: Frame) -> None:
+            with self._state_lock:
+                cam.last_frame = frame
+        return seen
+
+    def _result_seen(self, cam: _Camera) -> Any:
+        def seen(result: Result) -> None:
+            with self._state_lock:
+                if result.session_id != cam.session_id:
+                    return  # another station's session on the same stream
+                if result.status == ResultStatus.STOPPED:
+                    cam.session_id, cam.result = None, None
+                    cam.mode = mav.CAMERA_TRACKING_MODE_NONE
+                    if result.code is not None:
+                        self._statustext(cam, f"tracking ended: {result.code.value}")
+                    return
+                cam.result = result
+        return seen
+
+    # ------------------------------------------------------------------ running
+    def start(self) -> MavlinkCameras:
+        """Run in background threads; :meth:`close` stops them."""
+        self._threads = [threading.Thread(target=self.run, name="mavlink-io", daemon=True)]
+        self._threads[0].start()
+        return self
+
+    def run(self) -> None:
+        """Receive and answer until :meth:`close`: the I/O loop (heartbeats, status, fast
+        requests) here, the commands that wait for the service in a second thread."""
+        worker = threading.Thread(target=self._command_loop, name="mavlink-commands",
+                                  daemon=True)
+        worker.start()
+        try:
+            while not self._stop.is_set():
+                try:
+                    msg = self.conn.recv_match(blocking=True, timeout=0.02)
+                except (OSError, ValueError) as exc:  # a broken serial line, a bad packet
+                    self.counts["receive_errors"] += 1
+                    log.debug("mavlink receive: %s", exc)
+                    msg = None
+                if msg is not None:
+                    self._receive(msg)
+                self._tick(time.monotonic())
+        finally:
+            self._commands.put(None)
+            worker.join(timeout=5)
+
+    def close(self) -> None:
+        self._stop.set()
+        for t in self._threads:
+            t.join(timeout=5)
+        for w in self._watches:
+            w.close()
+        self.conn.close()
+
+    # ------------------------------------------------------------------ sending
+    def _send(self, cam: _Camera, message: Any) -> None:
+        with self._send_lock:
+            try:
+                cam.encoder.send(message)
+            except OSError as exc:  # no peer yet on udpin, a closed socket
+                self.counts["send_errors"] += 1
+                log.debug("mavlink send: %s", exc)
+
+    def _statustext(self, cam: _Camera, text: str,
+                    severity: int = mav.MAV_SEVERITY_WARNING) -> None:
+        self._send(cam, mav.MAVLink_statustext_message(severity, text.encode()[:50]))
+
+    def _ack(self, cam: _Camera, msg: Any, result: int, reason: str | None = None) -> None:
+        self.counts[f"ack_{result}"] += 1
+        if reason:
+            self._statustext(cam, f"{cam.config.stream_id}: {reason}")
+        self._send(cam, mav.MAVLink_command_ack_message(
+            msg.command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent()))
+
+    def _tick(self, now: float) -> None:
+        if now >= self._next_heartbeat:
+            self._next_heartbeat = now + self.heartbeat_s
+            for cam in self.cameras:
+                self._send(cam, mav.MAVLink_heartbeat_message(
+                    mav.MAV_TYPE_CAMERA, mav.MAV_AUTOPILOT_INVALID, 0, 0,
+                    mav.MAV_STATE_ACTIVE, 3))
+        if (self.link_up and self._last_station is not None
+                and now - self._last_station > self.link_timeout_s):
+            self.link_up = False
+            self.counts["link_lost"] += 1
+            log.warning("mavlink: no station heartbeat for %.1f s: link lost (tracking "
+                        "goes on)", now - self._last_station)
+        for cam in self.cameras:
+            if cam.status_interval_s > 0 and now >= cam.next_status:
+                cam.next_status = max(cam.next_status + cam.status_interval_s, now - 1.0)
+                self._send(cam, self._status(cam))
+
+    def _status(self, cam: _Camera) -> Any:
+        with self._state_lock:
+            session, result, mode, frame = cam.session_id, cam.result, cam.mode, cam.last_frame
+        nan = float("nan")
+        coords = [nan] * 7  # point_x, point_y, radius, rec_top_x/y, rec_bottom_x/y
+        size = (frame.width, frame.height) if frame and frame.width and frame.height else None
+        size = size or self._sizes.get(cam.config.stream_id)
+        if session and result is not None and size and all(map(math.isfinite, result.box)):
+            x, y, w, h = result.box
+            fw, fh = size
+            left, top = (x - 1.0) / fw, (y - 1.0) / fh
+            coords = [left + w / fw / 2, top + h / fh / 2, w / fw / 2,
+                      left, top, left + w / fw, top + h / fh]
+        if session is None:
+            return mav.MAVLink_camera_tracking_image_status_message(
+                mav.CAMERA_TRACKING_STATUS_FLAGS_IDLE, mav.CAMERA_TRACKING_MODE_NONE, 0,
+                *coords, 0)
+        return mav.MAVLink_camera_tracking_image_status_message(
+            tracking_status(result) if result is not None
+            else mav.CAMERA_TRACKING_STATUS_FLAGS_ACTIVE,  # started, first result on its way
+            mode, mav.CAMERA_TRACKING_TARGET_DATA_IN_STATUS, *coords, 0)
+
+    def _information(self, cam: _Camera) -> Any:
+        with self._state_lock:
+            frame = cam.last_frame
+        stream = cam.config.stream_id
+        if frame is not None and stream not in self._sizes:
+            # once per stream: a JPEG's size is in the image (a few ms); unreadable: 0 x 0
+            with contextlib.suppress(ValueError):
+                self._sizes[stream] = frame_size(frame)
+        w, h = self._sizes.get(stream, (0, 0))
+        if frame is not None and frame.width and frame.height:
+            w, h = frame.width, frame.height
+        nan = float("nan")
+        return mav.MAVLink_camera_information_message(
+            int(1e3 * (time.monotonic() - self._t0)) & 0xFFFFFFFF, _padded("arcf", 32),
+            _padded(f"ARCF tracker {cam.config.stream_id}", 32), 0, nan, nan, nan, w, h, 0,
+            mav.CAMERA_CAP_FLAGS_HAS_TRACKING_POINT
+            | mav.CAMERA_CAP_FLAGS_HAS_TRACKING_RECTANGLE, 0, b"", 0, 0)
+
+    # ------------------------------------------------------------------ receiving
+    def _receive(self, msg: Any) -> None:
+        kind = msg.get_type()
+        if kind == "BAD_DATA":
+            self.counts["malformed"] += 1
+            return
+        if msg.get_srcSystem() == self.conn.source_system and \
+                msg.get_srcComponent() in self._by_component:
+            return  # our own echo (a loopback or broadcast link)
+        if kind == "HEARTBEAT":
+            if msg.type != mav.MAV_TYPE_CAMERA:
+                self._last_station = time.monotonic()
+                if not self.link_up:
+                    self.link_up = True
+                    self.counts["link_up"] += 1
+                    log.info("mavlink: station heartbeat from %d/%d", msg.get_srcSystem(),
+                             msg.get_srcComponent())
+            return
+        if kind not in ("COMMAND_LONG", "COMMAND_INT"):
+            return
+        if msg.target_system not in (0, self.conn.source_system):
+            return
+        for cam in self._addressed(msg):
+            self.counts["commands"] += 1
+            self._command(cam, msg)
+
+    def _addressed(self, msg: Any) -> list[_Camera]:
+        """The cameras a command is for: the one it names by component id; on a broadcast
+        (component 0), those its camera-id parameter selects (0: all)."""
+        if msg.target_component in self._by_component:
+            return [self._by_component[msg.target_component]]
+        if msg.target_component != 0:
+            return []
+        camera_id = 0
+        if msg.command == mav.MAV_CMD_CAMERA_TRACK_POINT:
+            camera_id = int(msg.param4)
+        elif msg.command == mav.MAV_CMD_CAMERA_TRACK_RECTANGLE:  # COMMAND_INT: its x
+            camera_id = int(msg.param5 if hasattr(msg, "param5") else msg.x)
+        elif msg.command == mav.MAV_CMD_CAMERA_STOP_TRACKING:
+            camera_id = int(msg.param1)
+        return [c for c in self.cameras if camera_id in (0, c.number)]
+
+    def _command(self, cam: _Camera, msg: Any) -> None:
+        cmd = msg.command
+        if cmd == mav.MAV_CMD_SET_MESSAGE_INTERVAL:
+            if int(msg.param1) != mav.MAVLINK_MSG_ID_CAMERA_TRACKING_IMAGE_STATUS:
+                self._ack(cam, msg, mav.MAV_RESULT_DENIED)
+                return
+            interval_us = msg.param2
+            if interval_us < 0:
+                cam.status_interval_s = 0.0  # disabled
+            elif interval_us > 0:
+                cam.status_interval_s = max(interval_us / 1e6, MIN_INTERVAL_S)
+            cam.next_status = time.monotonic()
+            self._ack(cam, msg, mav.MAV_RESULT_ACCEPTED)
+        elif cmd == mav.MAV_CMD_REQUEST_MESSAGE or cmd == getattr(
+                mav, "MAV_CMD_REQUEST_CAMERA_INFORMATION", -1):
+            wanted = (mav.MAVLINK_MSG_ID_CAMERA_INFORMATION
+                      if cmd != mav.MAV_CMD_REQUEST_MESSAGE else int(msg.param1))
+            if wanted == mav.MAVLINK_MSG_ID_CAMERA_INFORMATION:
+                self._ack(cam, msg, mav.MAV_RESULT_ACCEPTED)
+                self._send(cam, self._information(cam))
+            elif wanted == mav.MAVLINK_MSG_ID_CAMERA_TRACKING_IMAGE_STATUS:
+                self._ack(cam, msg, mav.MAV_RESULT_ACCEPTED)
+                self._send(cam, self._status(cam))
+            else:
+                self._ack(cam, msg, mav.MAV_RESULT_DENIED)
+        elif cmd in TRACK_COMMANDS:
+            key = (cam.config.component_id, cmd,
+                   (msg.param1, msg.param2, msg.param3, msg.param4))
+            if key in self._pending:
+                return  # a retransmission of a command still being carried out
+            try:
+                self._commands.put_nowait((cam, msg))
+                self._pending.add(key)
+            except queue.Full:
+                self._ack(cam, msg, mav.MAV_RESULT_TEMPORARILY_REJECTED, "busy")
+        else:
+            self._ack(cam, msg, mav.MAV_RESULT_UNSUPPORTED)
+
+    # ------------------------------------------------------------------ track commands
+    def _command_loop(self) -> None:
+        while True:
+            item = self._commands.get()
+            if item is None:
+                return
+            cam, msg = item
+            try:
+                result, reason = self._track(cam, msg)
+            except Exception as exc:  # never let one command stop the component
+                log.exception("mavlink: command %d failed", msg.command)
+                result, reason = mav.MAV_RESULT_FAILED, f"internal error: {exc}"
+            self._pending.discard((cam.config.component_id, msg.command,
+                                   (msg.param1, msg.param2, msg.param3, msg.param4)))
+            self._ack(cam, msg, result, reason)
+
+    def _track(self, cam: _Camera, msg: Any) -> tuple[int, str | None]:
+        """Carry out a track or stop command; (MAV_RESULT, reason for the station)."""
+        stream = cam.config.stream_id
+        if msg.command == mav.MAV_CMD_CAMERA_STOP_TRACKING:
+            with self._state_lock:
+                session, cam.session_id, cam.result = cam.session_id, None, None
+                cam.mode = mav.CAMERA_TRACKING_MODE_NONE
+            if session is not None:
+                try:
+                    self.client.stop(session)
+                except (ServiceError, TimeoutError) as exc:
+                    log.info("mavlink: stop of %s: %s", session, exc)  # it ended already
+            return mav.MAV_RESULT_ACCEPTED, None
+        with self._state_lock:
+            frame = cam.last_frame
+        if frame is None:
+            return mav.MAV_RESULT_DENIED, "no frames yet on this stream"
+        try:
+            size = frame_size(frame)
+        except Exception as exc:
+            return mav.MAV_RESULT_DENIED, f"latest frame unreadable: {exc}"
+        self._sizes[stream] = size
+        try:
+            if msg.command == mav.MAV_CMD_CAMERA_TRACK_RECTANGLE:
+                box = rectangle_box(msg.param1, msg.param2, msg.param3, msg.param4, size)
+                mode = mav.CAMERA_TRACKING_MODE_RECTANGLE
+            else:
+                box = point_box(msg.param1, msg.param2, msg.param3, size)
+                mode = mav.CAMERA_TRACKING_MODE_POINT
+        except Denied as exc:
+            return mav.MAV_RESULT_DENIED, str(exc)
+        xywh = (box.x, box.y, box.w, box.h)
+        try:
+            if cam.session_id is not None:
+                try:
+                    self.client.reinit(cam.session_id, xywh, frame_seq=frame.seq)
+                    with self._state_lock:
+                        cam.mode = mode
+                    return mav.MAV_RESULT_ACCEPTED, None
+                except ServiceError as exc:
+                    if exc.code != ErrorCode.NO_SESSION.value:
+                        raise
+                    # the service ended it meanwhile: start a new one
+            ack = self.client.start(stream, xywh, preset=self.preset,
+                                    overrides=self.overrides, frame_seq=frame.seq)
+        except ServiceError as exc:
+            return mav.MAV_RESULT_FAILED, f"{exc.code}: {exc.error.message}"
+        except TimeoutError:
+            return mav.MAV_RESULT_FAILED, "the tracking service did not answer"
+        with self._state_lock:
+            cam.session_id, cam.result, cam.mode = ack.session_id, None, mode
+        return mav.MAV_RESULT_ACCEPTED, None
+
+
+# ---------------------------------------------------------------------------------- command
+def _value(text: str) -> Any:
+    low = text.lower()
+    if low in ("true", "false"):
+        return low == "true"
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    return text
+
+
+def _camera(text: str, index: int) -> CameraConfig:
+    stream, _, comp = text.partition("=")
+    return CameraConfig(stream, int(comp) if comp else FIRST_CAMERA_COMPONENT + index)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(
+        prog="arcf-mavlink",
+        description="Present streams of an arcf-service as MAVLink tracking cameras.")
+    ap.add_argument("--mavlink", default="udpout:127.0.0.1:14550",
+                    help="pymavlink connection string (default: %(default)s, a local "
+                    "QGroundControl or MAVProxy); udpin:HOST:PORT to listen, "
+                    "tcp:HOST:PORT, or a serial device,baud")
+    ap.add_argument("--camera", action="append", required=True, metavar="STREAM[=COMPID]",
+                    help="a stream shown as a camera; component ids default to 100, 101, ...")
+    ap.add_argument("--connect", default="tcp/127.0.0.1:7447",
+                    help="the service's Zenoh endpoint (default: %(default)s)")
+    ap.add_argument("--system-id", type=int, default=1,
+                    help="MAVLink system id: the vehicle's (default: %(default)s)")
+    ap.add_argument("--preset", default="arcf-hc")
+    ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                    help="preset override for the sessions, e.g. state.reacquire=true")
+    ap.add_argument("--status-hz", type=float, default=10.0,
+                    help="CAMERA_TRACKING_IMAGE_STATUS rate until a station sets one")
+    ap.add_argument("--link-timeout", type=float, default=5.0,
+                    help="seconds without a station heartbeat before the link counts as lost")
+    args = ap.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
+    overrides = {}
+    for item in args.set:
+        name, sep, value = item.partition("=")
+        if not sep:
+            ap.error(f"--set needs NAME=VALUE, got {item!r}")
+        overrides[name] = _value(value)
+    cameras = [_camera(c, i) for i, c in enumerate(args.camera)]
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    with TrackingClient(connect=[args.connect]) as client:
+        endpoint = MavlinkCameras(
+            client, args.mavlink, cameras, system_id=args.system_id, preset=args.preset,
+            overrides=overrides, status_interval_s=1.0 / args.status_hz if args.status_hz else 0,
+            link_timeout_s=args.link_timeout).start()
+        print(f"arcf-mavlink: {len(cameras)} camera(s) on {args.mavlink}: "
+              + ", ".join(f"{c.stream_id} as {args.system_id}/{c.component_id}"
+                          for c in cameras), flush=True)
+        stop.wait()
+        endpoint.close()
+    return 0
+
+
+__all__ = ["CameraConfig", "Denied", "MavlinkCameras", "frame_size", "main", "point_box",
+           "rectangle_box", "tracking_status"]
