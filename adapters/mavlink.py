@@ -111,7 +111,7 @@ def rectangle_box(top_x: float, top_y: float, bottom_x: float, bottom_y: float,
     if not all(math.isfinite(v) and 0.0 <= v <= 1.0 for v in values):
         raise Denied("rectangle corners must be within [0, 1]")
     if bottom_x <= top_x or bottom_y <= top_y:
-        raise Denied("rectangle's bottom-right must be below and right of its top-left")
+        raise Denied("bottom-right must be below and right of top-left")
     w, h = size
     box = Box(top_x * w + 1.0, top_y * h + 1.0, (bottom_x - top_x) * w, (bottom_y - top_y) * h)
     if box.w < 2 or box.h < 2:
@@ -246,7 +246,8 @@ class MavlinkCameras:
         try:
             while not self._stop.is_set():
                 try:
-                    msg = self.conn.recv_match(blocking=True, timeout=0.02)
+                    # short waits: the status ticks below run between packets
+                    msg = self.conn.recv_match(blocking=True, timeout=0.005)
                 except (OSError, ValueError) as exc:  # a broken serial line, a bad packet
                     self.counts["receive_errors"] += 1
                     log.debug("mavlink receive: %s", exc)
@@ -277,12 +278,13 @@ class MavlinkCameras:
 
     def _statustext(self, cam: _Camera, text: str,
                     severity: int = mav.MAV_SEVERITY_WARNING) -> None:
+        """A reason for the station's operator: STATUSTEXT holds 50 bytes."""
         self._send(cam, mav.MAVLink_statustext_message(severity, text.encode()[:50]))
 
     def _ack(self, cam: _Camera, msg: Any, result: int, reason: str | None = None) -> None:
         self.counts[f"ack_{result}"] += 1
         if reason:
-            self._statustext(cam, f"{cam.config.stream_id}: {reason}")
+            self._statustext(cam, reason)  # the component says which camera
         self._send(cam, mav.MAVLink_command_ack_message(
             msg.command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent()))
 
