@@ -6,4 +6,6 @@ ground station, on the companion computer or next to the service.
 
 * :mod:`adapters.mavlink`: the service as one MAVLink camera per video stream (the camera
   protocol's tracking commands and ``CAMERA_TRACKING_IMAGE_STATUS``), ``arcf-mavlink``.
+* :mod:`adapters.ros2`: a ROS 2 node on rmw_zenoh: ``CompressedImage`` topics in,
+  ``Detection2DArray`` out, sessions from a topic, ``arcf-ros2``.
 """
