@@ -34,6 +34,7 @@ import math
 import os
 import queue
 import signal
+import sys
 import threading
 import time
 from collections import Counter
@@ -150,6 +151,19 @@ def tracking_status(result: Result | None) -> int:
     return mav.CAMERA_TRACKING_STATUS_FLAGS_ERROR
 
 
+def whole(value: float) -> int | None:
+    """A command parameter that must be a whole number (a message id, a camera id), or None
+    when it is not one (NaN, infinite, fractional): such a command is refused, never trusted."""
+    if not math.isfinite(value) or value != int(value):
+        return None
+    return int(value)
+
+
+#: how long a completed command's result is kept for its retransmissions (COMMAND_LONG with
+#: ``confirmation`` > 0), which get the same acknowledgement instead of a second execution
+DONE_KEPT_S = 5.0
+
+
 def _padded(text: str, size: int) -> list[int]:
     raw = text.encode()[:size]
     return list(raw) + [0] * (size - len(raw))
@@ -195,19 +209,22 @@ class MavlinkCameras:
         #: declare theirs)
         self._sizes: dict[str, tuple[int, int]] = {}
         self._by_component = {c.config.component_id: c for c in self.cameras}
-        self._watches = []
+        self._commands: queue.Queue[tuple[_Camera, Any] | None] = queue.Queue(maxsize=64)
+        self._pending: set[tuple[int, int, tuple[str, ...]]] = set()
+        self._done: dict[tuple[int, int, tuple[str, ...]], tuple[float, int]] = {}
+        self.status_interval_s = status_interval_s
+        self._stop = threading.Event()
+        self._threads: list[threading.Thread] = []
+        self._next_heartbeat = 0.0
+        self._text_id = 0
+        self._last_station: float | None = None
+        self.link_up = False
+        self._watches = []  # last: their callbacks may run at once
         for cam in self.cameras:
             self._watches.append(client.frames(cam.config.stream_id,
                                                callback=self._frame_seen(cam)))
             self._watches.append(client.results(cam.config.stream_id,
                                                 callback=self._result_seen(cam)))
-        self._commands: queue.Queue[tuple[_Camera, Any] | None] = queue.Queue(maxsize=64)
-        self._pending: set[tuple[int, int, tuple[float, ...]]] = set()
-        self._stop = threading.Event()
-        self._threads: list[threading.Thread] = []
-        self._next_heartbeat = 0.0
-        self._last_station: float | None = None
-        self.link_up = False
 
     # ------------------------------------------------------------------ service side
     def _frame_seen(self, cam: _Camera) -> Any:
@@ -252,12 +269,21 @@ class MavlinkCameras:
                     self.counts["receive_errors"] += 1
                     log.debug("mavlink receive: %s", exc)
                     msg = None
-                if msg is not None:
-                    self._receive(msg)
-                self._tick(time.monotonic())
+                try:
+                    if msg is not None:
+                        self._receive(msg)
+                    self._tick(time.monotonic())
+                except Exception:  # one packet, one bug: counted, logged, never fatal
+                    self.counts["internal_errors"] += 1
+                    log.exception("mavlink: packet %s not handled", msg)
         finally:
             self._commands.put(None)
             worker.join(timeout=5)
+
+    @property
+    def alive(self) -> bool:
+        """The I/O loop runs (started with :meth:`start` and not closed)."""
+        return bool(self._threads) and self._threads[0].is_alive()
 
     def close(self) -> None:
         self._stop.set()
@@ -278,8 +304,16 @@ class MavlinkCameras:
 
     def _statustext(self, cam: _Camera, text: str,
                     severity: int = mav.MAV_SEVERITY_WARNING) -> None:
-        """A reason for the station's operator: STATUSTEXT holds 50 bytes."""
-        self._send(cam, mav.MAVLink_statustext_message(severity, text.encode()[:50]))
+        """A reason for the station's operator. A STATUSTEXT holds 50 bytes; a longer text
+        goes in chunks sharing an ``id`` (MAVLink 2), which stations join."""
+        raw = text.encode()[:500]
+        if len(raw) <= 50:
+            self._send(cam, mav.MAVLink_statustext_message(severity, raw))
+            return
+        self._text_id = self._text_id % 65535 + 1
+        for seq, start in enumerate(range(0, len(raw), 50)):
+            self._send(cam, mav.MAVLink_statustext_message(severity, raw[start:start + 50],
+                                                           self._text_id, seq))
 
     def _ack(self, cam: _Camera, msg: Any, result: int, reason: str | None = None) -> None:
         self.counts[f"ack_{result}"] += 1
@@ -374,37 +408,46 @@ class MavlinkCameras:
 
     def _addressed(self, msg: Any) -> list[_Camera]:
         """The cameras a command is for: the one it names by component id; on a broadcast
-        (component 0), those its camera-id parameter selects (0: all)."""
+        (component 0), those its camera-id parameter selects: 0 all, a camera's component
+        id (MAVLink's 7-255), or its position 1..N among this endpoint's cameras."""
         if msg.target_component in self._by_component:
             return [self._by_component[msg.target_component]]
         if msg.target_component != 0:
             return []
-        camera_id = 0
+        raw = 0.0
         if msg.command == mav.MAV_CMD_CAMERA_TRACK_POINT:
-            camera_id = int(msg.param4)
+            raw = msg.param4
         elif msg.command == mav.MAV_CMD_CAMERA_TRACK_RECTANGLE:  # COMMAND_INT: its x
-            camera_id = int(msg.param5 if hasattr(msg, "param5") else msg.x)
+            raw = msg.param5 if hasattr(msg, "param5") else float(msg.x)
         elif msg.command == mav.MAV_CMD_CAMERA_STOP_TRACKING:
-            camera_id = int(msg.param1)
-        return [c for c in self.cameras if camera_id in (0, c.number)]
+            raw = msg.param1
+        camera_id = whole(raw)
+        if camera_id is None:
+            self.counts["bad_camera_id"] += 1
+            return []  # not a camera id: addressed to no camera of ours
+        return [c for c in self.cameras
+                if camera_id in (0, c.number, c.config.component_id)]
 
     def _command(self, cam: _Camera, msg: Any) -> None:
         cmd = msg.command
         if cmd == mav.MAV_CMD_SET_MESSAGE_INTERVAL:
-            if int(msg.param1) != mav.MAVLINK_MSG_ID_CAMERA_TRACKING_IMAGE_STATUS:
+            interval_us = msg.param2
+            if (whole(msg.param1) != mav.MAVLINK_MSG_ID_CAMERA_TRACKING_IMAGE_STATUS
+                    or not math.isfinite(interval_us) or interval_us < -1):
                 self._ack(cam, msg, mav.MAV_RESULT_DENIED)
                 return
-            interval_us = msg.param2
-            if interval_us < 0:
+            if interval_us == -1:
                 cam.status_interval_s = 0.0  # disabled
-            elif interval_us > 0:
+            elif interval_us == 0:
+                cam.status_interval_s = self.status_interval_s  # the default rate
+            else:
                 cam.status_interval_s = max(interval_us / 1e6, MIN_INTERVAL_S)
             cam.next_status = time.monotonic()
             self._ack(cam, msg, mav.MAV_RESULT_ACCEPTED)
         elif cmd == mav.MAV_CMD_REQUEST_MESSAGE or cmd == getattr(
                 mav, "MAV_CMD_REQUEST_CAMERA_INFORMATION", -1):
             wanted = (mav.MAVLINK_MSG_ID_CAMERA_INFORMATION
-                      if cmd != mav.MAV_CMD_REQUEST_MESSAGE else int(msg.param1))
+                      if cmd != mav.MAV_CMD_REQUEST_MESSAGE else whole(msg.param1))
             if wanted == mav.MAVLINK_MSG_ID_CAMERA_INFORMATION:
                 self._ack(cam, msg, mav.MAV_RESULT_ACCEPTED)
                 self._send(cam, self._information(cam))
@@ -414,10 +457,16 @@ class MavlinkCameras:
             else:
                 self._ack(cam, msg, mav.MAV_RESULT_DENIED)
         elif cmd in TRACK_COMMANDS:
-            key = (cam.config.component_id, cmd,
-                   (msg.param1, msg.param2, msg.param3, msg.param4))
+            key = self._key(cam, msg)
             if key in self._pending:
                 return  # a retransmission of a command still being carried out
+            if getattr(msg, "confirmation", 0) > 0:  # a retransmission: its ack got lost?
+                now = time.monotonic()
+                self._done = {k: v for k, v in self._done.items() if now - v[0] < DONE_KEPT_S}
+                if key in self._done:
+                    self.counts["retransmissions"] += 1
+                    self._ack(cam, msg, self._done[key][1])
+                    return
             try:
                 self._commands.put_nowait((cam, msg))
                 self._pending.add(key)
@@ -438,9 +487,16 @@ class MavlinkCameras:
             except Exception as exc:  # never let one command stop the component
                 log.exception("mavlink: command %d failed", msg.command)
                 result, reason = mav.MAV_RESULT_FAILED, f"internal error: {exc}"
-            self._pending.discard((cam.config.component_id, msg.command,
-                                   (msg.param1, msg.param2, msg.param3, msg.param4)))
+            key = self._key(cam, msg)
+            self._pending.discard(key)
+            self._done[key] = (time.monotonic(), result)
             self._ack(cam, msg, result, reason)
+
+    @staticmethod
+    def _key(cam: _Camera, msg: Any) -> tuple[int, int, tuple[str, ...]]:
+        """A command's identity for retransmissions (repr: NaN equals NaN)."""
+        return (cam.config.component_id, msg.command,
+                tuple(repr(v) for v in (msg.param1, msg.param2, msg.param3, msg.param4)))
 
     def _track(self, cam: _Camera, msg: Any) -> tuple[int, str | None]:
         """Carry out a track or stop command; (MAV_RESULT, reason for the station)."""
@@ -496,6 +552,29 @@ class MavlinkCameras:
         return mav.MAV_RESULT_ACCEPTED, None
 
 
+def check_preset(client: TrackingClient, preset: str, overrides: Mapping[str, Any]) -> None:
+    """Refuse, before any station clicks, a preset or an override the service would refuse
+    (its ``presets`` reply says what each override accepts). Raises ``ValueError``."""
+    info = client.presets()
+    if preset not in {p.name for p in info.presets}:
+        raise ValueError(f"unknown preset {preset!r}; the service runs "
+                         f"{sorted(p.name for p in info.presets)}")
+    accepts = {p.name: p for p in info.parameters}
+    kinds = {"bool": (bool,), "int": (int,), "float": (int, float), "str": (str,)}
+    for name, value in overrides.items():
+        p = accepts.get(name)
+        if p is None:
+            raise ValueError(f"unknown override {name!r}")
+        if not isinstance(value, kinds[p.kind]) or (p.kind != "bool" and isinstance(value, bool)):
+            raise ValueError(f"override {name}={value!r}: a {p.kind} is needed")
+        if p.choices is not None and value not in p.choices:
+            raise ValueError(f"override {name}={value!r}: one of {p.choices}")
+        if p.kind in ("int", "float") and not (
+                (p.minimum is None or value >= p.minimum)
+                and (p.maximum is None or value <= p.maximum)):
+            raise ValueError(f"override {name}={value!r}: within [{p.minimum}, {p.maximum}]")
+
+
 # ---------------------------------------------------------------------------------- command
 def _value(text: str) -> Any:
     low = text.lower()
@@ -548,6 +627,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
     with TrackingClient(connect=[args.connect]) as client:
+        try:
+            check_preset(client, args.preset, overrides)
+        except (ValueError, TimeoutError, ServiceError) as exc:
+            print(f"arcf-mavlink: {exc}", file=sys.stderr)
+            return 2
         endpoint = MavlinkCameras(
             client, args.mavlink, cameras, system_id=args.system_id, preset=args.preset,
             overrides=overrides, status_interval_s=1.0 / args.status_hz if args.status_hz else 0,
@@ -555,10 +639,24 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"arcf-mavlink: {len(cameras)} camera(s) on {args.mavlink}: "
               + ", ".join(f"{c.stream_id} as {args.system_id}/{c.component_id}"
                           for c in cameras), flush=True)
-        stop.wait()
+        while not stop.wait(1.0):
+            if not endpoint.alive:  # never a silent zombie: a supervisor restarts us
+                print("arcf-mavlink: the MAVLink loop stopped", file=sys.stderr)
+                endpoint.close()
+                return 1
         endpoint.close()
     return 0
 
 
-__all__ = ["CameraConfig", "Denied", "MavlinkCameras", "frame_size", "main", "point_box",
-           "rectangle_box", "tracking_status"]
+__all__ = [
+    "CameraConfig",
+    "Denied",
+    "MavlinkCameras",
+    "check_preset",
+    "frame_size",
+    "main",
+    "point_box",
+    "rectangle_box",
+    "tracking_status",
+    "whole",
+]

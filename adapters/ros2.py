@@ -17,7 +17,8 @@ publisher gid), and announce nodes, publishers and subscriptions with liveliness
   results without a box (error, stopped) give an empty array;
 * a ``vision_msgs/msg/Detection2D`` on ``/arcf/<stream>/track`` starts a session on the stream
   from its ``bbox`` (pixels), or re-initialises the session named by its ``id`` (empty: the
-  bridge's own session of that stream); a box of size 0 stops it.
+  bridge's own session of that stream; only sessions of that stream); a 0 x 0 box stops it,
+  and a box with a negative, NaN or half-zero size is refused.
 
 Wire facts from rmw_zenoh (``docs/design.md``, ``liveliness_utils.cpp``,
 ``attachment_helpers.cpp``): the attachment is the sequence number and the source timestamp as
@@ -204,10 +205,33 @@ def _encoding(fmt: str) -> str | None:
 class _Stream:
     stream_id: str
     topic: str
+    track_topic: str
     publisher: Ros2Publisher
     seq: int = 0
     headers: OrderedDict[int, tuple[int, str]] | None = None
     session_id: str | None = None
+    #: the live sessions of this stream (seen in its results): the only ones its track topic
+    #: may re-initialise or stop
+    sessions: set[str] | None = None
+
+
+class _Warnings:
+    """At most one log line per kind every ``every_s`` seconds, with the count it stands
+    for: a hostile peer cannot fill the log."""
+
+    def __init__(self, every_s: float = 10.0) -> None:
+        self.every_s = every_s
+        self._last: dict[str, float] = {}
+        self._held: Counter[str] = Counter()
+
+    def __call__(self, kind: str, text: str, *args: Any) -> None:
+        now = time.monotonic()
+        if now - self._last.get(kind, -1e9) < self.every_s:
+            self._held[kind] += 1
+            return
+        held, self._held[kind] = self._held[kind], 0
+        self._last[kind] = now
+        log.warning(text + (f" (and {held} more like it)" if held else ""), *args)
 
 
 class Ros2Bridge:
@@ -230,6 +254,7 @@ class Ros2Bridge:
         self.preset, self.overrides = preset, dict(overrides or {})
         self.node = Ros2Node(self.session, domain_id, node_name, namespace)
         self.counts: Counter[str] = Counter()
+        self._warn = _Warnings()
         self._lock = threading.Lock()
         self._work: queue.Queue[tuple[str, _Stream, bytes] | None] = queue.Queue(maxsize=64)
         self._subs: list[Any] = []
@@ -238,8 +263,9 @@ class Ros2Bridge:
         for topic, stream_id in images.items():
             out = f"{base}/{node_name}/{stream_id}/detections"
             track = f"{base}/{node_name}/{stream_id}/track"
-            s = _Stream(stream_id, topic, Ros2Publisher(self.node, out, rt.DETECTION_2D_ARRAY),
-                        headers=OrderedDict())
+            s = _Stream(stream_id, topic, track,
+                        Ros2Publisher(self.node, out, rt.DETECTION_2D_ARRAY),
+                        headers=OrderedDict(), sessions=set())
             self.streams[stream_id] = s
             self.node.entity("MS", topic, rt.COMPRESSED_IMAGE)
             self.node.entity("MS", track, rt.DETECTION_2D)
@@ -277,14 +303,16 @@ class Ros2Bridge:
                     self._track(s, payload)
             except Exception as exc:  # one bad sample never stops the bridge
                 self.counts[f"bad_{kind}"] += 1
-                log.warning("ros2: %s on %s refused: %s", kind, s.topic, exc)
+                self._warn(f"bad_{kind}", "ros2: %s refused: %s",
+                           s.topic if kind == "image" else s.track_topic, exc)
 
     def _image(self, s: _Stream, payload: bytes) -> None:
         msg = rt.deserialize(payload, rt.COMPRESSED_IMAGE)
         encoding = _encoding(msg.format)
         if encoding is None:
             self.counts["unsupported_format"] += 1
-            log.warning("ros2: %s: format %r is neither jpeg nor png", s.topic, msg.format)
+            self._warn("format", "ros2: %s: format %r is neither jpeg nor png", s.topic,
+                       msg.format)
             return
         stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         with self._lock:
@@ -303,8 +331,19 @@ class Ros2Bridge:
         cx, cy = det.bbox.center.position.x, det.bbox.center.position.y
         w, h = det.bbox.size_x, det.bbox.size_y
         session = det.id or s.session_id
+        if not all(np.isfinite((cx, cy, w, h))) or w < 0 or h < 0 or (w == 0) != (h == 0):
+            self.counts["refused"] += 1
+            self._warn("track", "ros2: %s: box %s refused (a stop is a 0 x 0 box)",
+                       s.track_topic, (cx, cy, w, h))
+            return
+        assert s.sessions is not None
+        if det.id and det.id not in s.sessions and det.id != s.session_id:
+            self.counts["refused"] += 1
+            self._warn("track", "ros2: %s: session %r is not a session of stream %r",
+                       s.track_topic, det.id, s.stream_id)
+            return
         try:
-            if w <= 0 or h <= 0:  # stop
+            if w == 0:  # 0 x 0: stop
                 if session:
                     self.client.stop(session)
                     if session == s.session_id:
@@ -322,7 +361,7 @@ class Ros2Bridge:
                 self.counts["starts"] += 1
         except (ServiceError, TimeoutError) as exc:
             self.counts["refused"] += 1
-            log.warning("ros2: track request on %s refused: %s", s.stream_id, exc)
+            self._warn("track", "ros2: %s: refused by the service: %s", s.track_topic, exc)
 
     # ------------------------------------------------------------------ service -> ROS 2
     def _on_result(self, s: _Stream) -> Any:
@@ -330,8 +369,16 @@ class Ros2Bridge:
             with self._lock:
                 assert s.headers is not None
                 header = s.headers.get(result.frame_seq, (result.capture_ts_ns, ""))
-            if result.status == ResultStatus.STOPPED and result.session_id == s.session_id:
-                s.session_id = None
+            assert s.sessions is not None
+            if result.status == ResultStatus.STOPPED:
+                s.sessions.discard(result.session_id)
+                if result.session_id == s.session_id:
+                    s.session_id = None
+                if result.code is not None:  # ended by the service, not by a request
+                    log.info("ros2: session %s of %s ended: %s", result.session_id,
+                             s.stream_id, result.message)
+            else:
+                s.sessions.add(result.session_id)
             s.publisher.publish(detection_array(result, header))
             self.counts["detections"] += 1
         return on_result

@@ -398,15 +398,20 @@ class ControlPlane:
 
     def _presets(self, req: Any) -> Any:
         """The presets and what each override accepts (``arcf.presets.TUNABLE``): what a
-        request may set, as :meth:`_start` enforces it. Library-only parameters (lists,
-        nested ones, host paths) are left out: a wire override is a scalar."""
+        request may set, as :meth:`_start` enforces it, nested ones (``scale_filter.*``,
+        ``state.*``) included. Library-only parameters (lists, host paths) are left out: a
+        wire override is a scalar."""
+        from functools import reduce
+
         from schemas import ParameterInfo, PresetInfo, Presets
 
         kinds = {bool: "bool", int: "int", float: "float", str: "str"}
-        wire = {k: t for k, t in TUNABLE.items() if t.kind in kinds and "." not in k}
+        wire = {k: t for k, t in TUNABLE.items()
+                if t.kind in kinds and k not in HOST_PARAMETERS}
         return Presets(
             request_id=req.request_id,
-            presets=[PresetInfo(name=p.name, values={k: getattr(p, k) for k in wire})
+            presets=[PresetInfo(name=p.name, values={k: reduce(getattr, k.split("."), p)
+                                                     for k in wire})
                      for p in PRESETS.values()],
             parameters=[ParameterInfo(name=k, kind=kinds[t.kind], minimum=t.low,
                                       maximum=t.high,

@@ -75,11 +75,11 @@ class Station:
             return [m for t, m in self.received if t >= t0 and m.get_type() == kind]
 
     def command(self, command: int, *params: float, component: int = COMP,
-                timeout: float = 10.0) -> tuple[int, list[str]]:
+                timeout: float = 10.0, confirmation: int = 0) -> tuple[int, list[str]]:
         """Send a COMMAND_LONG; its COMMAND_ACK's result and the STATUSTEXTs sent with it."""
         t0 = time.monotonic()
         p = [*params, *[0.0] * (7 - len(params))]
-        self.conn.mav.command_long_send(1, component, command, 0, *p)
+        self.conn.mav.command_long_send(1, component, command, confirmation, *p)
         deadline = t0 + timeout
         while time.monotonic() < deadline:
             acks = [a for a in self.since(t0, "COMMAND_ACK") if a.command == command]
@@ -274,3 +274,75 @@ def test_a_lost_link_and_garbage_do_not_stop_the_camera(rig: dict[str, Any]) -> 
     assert result == mav.MAV_RESULT_ACCEPTED
     assert endpoint.counts["link_up"] == 2
     assert endpoint.counts["malformed"] + endpoint.counts["receive_errors"] > 0
+
+
+def test_hostile_parameters_retransmissions_and_rates(rig: dict[str, Any]) -> None:
+    """What a careless or hostile station sends: NaN and infinite whole-number parameters
+    are refused and never stop the camera; a retransmitted command (confirmation > 0) gets
+    its first acknowledgement again instead of a second execution; interval 0 restores the
+    default rate; a broadcast may name the camera by its component id."""
+    station, endpoint, client = rig["station"], rig["endpoint"], rig["client"]
+    rig["publishing"].set()
+    _wait(lambda: endpoint.link_up and endpoint.cameras[0].last_frame is not None)
+    nan, inf = float("nan"), float("inf")
+    assert station.command(mav.MAV_CMD_REQUEST_MESSAGE, nan)[0] == mav.MAV_RESULT_DENIED
+    assert station.command(mav.MAV_CMD_REQUEST_MESSAGE, inf)[0] == mav.MAV_RESULT_DENIED
+    assert station.command(mav.MAV_CMD_SET_MESSAGE_INTERVAL, nan, 1e5)[0] == \
+        mav.MAV_RESULT_DENIED
+    assert station.command(mav.MAV_CMD_SET_MESSAGE_INTERVAL,
+                           mav.MAVLINK_MSG_ID_CAMERA_TRACKING_IMAGE_STATUS, nan)[0] == \
+        mav.MAV_RESULT_DENIED
+    # a broadcast with a NaN camera id is for no camera: no ack, and the camera lives on
+    station.conn.mav.command_long_send(1, 0, mav.MAV_CMD_CAMERA_STOP_TRACKING, 0, inf,
+                                       0, 0, 0, 0, 0, 0)
+    station.conn.mav.command_long_send(1, 0, mav.MAV_CMD_CAMERA_TRACK_POINT, 0, 0.5, 0.5,
+                                       0.02, nan, 0, 0, 0)
+    _wait(lambda: endpoint.counts["bad_camera_id"] == 2)
+    assert endpoint.alive and endpoint.counts["internal_errors"] == 0
+
+    # interval 0: back to the default rate (1 Hz in this rig)
+    assert station.command(mav.MAV_CMD_SET_MESSAGE_INTERVAL,
+                           mav.MAVLINK_MSG_ID_CAMERA_TRACKING_IMAGE_STATUS, 20_000)[0] == \
+        mav.MAV_RESULT_ACCEPTED
+    assert endpoint.cameras[0].status_interval_s == pytest.approx(0.02)
+    assert station.command(mav.MAV_CMD_SET_MESSAGE_INTERVAL,
+                           mav.MAVLINK_MSG_ID_CAMERA_TRACKING_IMAGE_STATUS, 0)[0] == \
+        mav.MAV_RESULT_ACCEPTED
+    assert endpoint.cameras[0].status_interval_s == pytest.approx(1.0)
+
+    # a broadcast naming the camera by its component id
+    results: list = []
+    sub = client.results(STREAM, callback=results.append)
+    rect = (0.4, 0.4, 0.5, 0.5)
+    assert station.command(mav.MAV_CMD_CAMERA_TRACK_RECTANGLE, *rect, COMP,
+                           component=0)[0] == mav.MAV_RESULT_ACCEPTED
+    session = endpoint.cameras[0].session_id
+    assert session is not None
+    # the same rectangle again, as a new command: re-initialised
+    assert station.command(mav.MAV_CMD_CAMERA_TRACK_RECTANGLE, *rect)[0] == \
+        mav.MAV_RESULT_ACCEPTED
+    _wait(lambda: sum(r.status == "reinitialized" for r in list(results)) == 1)
+    # ...and its retransmission (confirmation 1): the same ack, not a second execution
+    assert station.command(mav.MAV_CMD_CAMERA_TRACK_RECTANGLE, *rect, confirmation=1)[0] == \
+        mav.MAV_RESULT_ACCEPTED
+    assert endpoint.counts["retransmissions"] == 1
+    time.sleep(1.0)
+    assert sum(r.status == "reinitialized" for r in list(results)) == 1
+    assert station.command(mav.MAV_CMD_CAMERA_STOP_TRACKING)[0] == mav.MAV_RESULT_ACCEPTED
+    sub.close()
+
+
+def test_a_preset_or_override_the_service_refuses_is_caught_at_start_up(
+        rig: dict[str, Any]) -> None:
+    from adapters.mavlink import check_preset
+
+    client = rig["client"]
+    check_preset(client, "arcf-hc", {"state.reacquire": True})
+    for preset, overrides, fragment in (
+            ("arcf-xx", {}, "unknown preset"),
+            ("arcf-hc", {"gamma": 1000.0}, "within"),
+            ("arcf-hc", {"no_such": 1}, "unknown override"),
+            ("arcf-hc", {"state.reacquire": 1}, "a bool")):
+        with pytest.raises(ValueError, match=fragment):
+            check_preset(client, preset, overrides)
+

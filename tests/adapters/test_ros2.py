@@ -217,6 +217,20 @@ def test_ros2_nodes_track_through_the_bridge() -> None:
             time.sleep(0.02)
         assert bridge.counts["starts"] == 1
 
+        # refused, the session untouched: a session of another stream, a negative size
+        other = client.start("elsewhere", (10.0, 10.0, 40.0, 40.0), preset="bacf")
+        for bad in (Detection2D(Header(Time(0, 0), ""), [], request.bbox, other.session_id),
+                    Detection2D(Header(Time(0, 0), ""), [],
+                                BoundingBox2D(Pose2D(Point2D(50.0, 50.0), 0.0), -4.0, 10.0),
+                                "")):
+            node.put(track_key, bad.serialize(), attachment=attachment(1, time.time_ns(), gid))
+        deadline = time.monotonic() + 10
+        while bridge.counts["refused"] < 2 and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert bridge.counts["refused"] == 2 and bridge.counts["stops"] == 0
+        assert {s.stream_id for s in client.status().sessions} == {"cam1", "elsewhere"}
+        client.stop(other.session_id)
+
         # garbage on the image topic: counted, the bridge goes on
         node.put(image_key, b"\x00\x01\x00\x00not cdr")
         # real frames in, lock-step: each image, then its detection

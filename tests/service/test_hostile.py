@@ -440,7 +440,9 @@ def test_the_service_says_what_each_override_accepts(service, clip) -> None:
     with TrackingClient(connect=[service.endpoint]) as client:
         answer = client.presets()
         params = {p.name: p for p in answer.parameters}
-        assert {"admm_iterations", "gamma", "sampling", "n_scales"} <= set(params)
+        assert {"admm_iterations", "gamma", "sampling", "n_scales", "scale_filter.n_scales",
+                "state.reacquire", "state.update_policy"} <= set(params)
+        assert params["state.reacquire"].kind == "bool"
         assert params["admm_iterations"].kind == "int" and params["admm_iterations"].maximum == 20
         assert params["sampling"].choices == ["release", "pyramid"]
         assert sorted(p.name for p in answer.presets) == ["arcf-h", "arcf-hc", "bacf"]
