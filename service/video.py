@@ -1,0 +1,143 @@
+"""H.264 / H.265 access units in, decoded frames out: one stateful decoder per stream.
+
+Drone cameras send encoded video, not a picture per frame: a P-frame is a difference from the
+frames before it, so every access unit must go through the same decoder, in order, and a lost
+or damaged one spoils every frame until the next keyframe. :class:`StreamDecoder` keeps that
+state for one stream (PyAV, which ships FFmpeg in its wheels):
+
+* it starts at the first keyframe (IDR for H.264, IRAP for H.265) and keeps the latest
+  parameter sets (SPS/PPS, and VPS for H.265), which it puts in front of a keyframe that
+  comes without them after a resynchronisation;
+* a gap in the stream's numbering (a unit lost on the way) or a damaged unit (the decoder
+  raises, or reports an error while decoding it: FFmpeg would otherwise conceal the damage
+  and hand out a smeared picture) drops the decoder state and waits for the next keyframe:
+  no box is ever computed on a frame decoded from a broken reference;
+* every outcome is returned with a reason, for the caller to count and report.
+
+Decoding runs single-threaded per stream (FFmpeg's frame threads would hold several frames
+and make the error capture ambiguous), so its memory is one decoder's: the reference frames
+of one stream (measured in docs/benchmarks.md).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import Enum
+
+import av
+import av.logging
+import numpy as np
+
+#: Annex B NAL unit types: keyframes (H.264 IDR 5; H.265 IRAP 16-21) and parameter sets
+#: (H.264 SPS 7, PPS 8; H.265 VPS 32, SPS 33, PPS 34)
+KEYFRAME_TYPES = {"h264": frozenset({5}), "hevc": frozenset(range(16, 22))}
+PARAMETER_TYPES = {"h264": frozenset({7, 8}), "hevc": frozenset({32, 33, 34})}
+#: FFmpeg's log level of a decoding error (AV_LOG_ERROR)
+_FFMPEG_ERROR = 16
+
+
+class Outcome(str, Enum):
+    """What one access unit gave."""
+
+    FRAME = "frame"  # a picture, decoded from an intact chain since the last keyframe
+    NO_FRAME = "no_frame"  # accepted, no picture out yet (e.g. the decoder's delay)
+    WAITING = "waiting_for_keyframe"  # skipped: the decoder waits for a keyframe
+    RESYNC = "resync"  # a gap or a damaged unit: state dropped, waiting for a keyframe
+
+
+@dataclass(frozen=True)
+class Decoded:
+    outcome: Outcome
+    #: the picture, (H, W, 3) uint8 BGR, for ``Outcome.FRAME``
+    image: np.ndarray | None = None
+    #: why, for ``WAITING`` and ``RESYNC``
+    reason: str | None = None
+
+
+def nal_units(data: bytes, codec: str) -> list[tuple[int, bytes]]:
+    """The NAL units of an Annex B access unit: (type, the unit with its start code)."""
+    starts = []
+    i = data.find(b"\x00\x00\x01")
+    while i >= 0:
+        begin = i - 1 if i > 0 and data[i - 1] == 0 else i  # a 4-byte start code
+        starts.append((begin, i + 3))
+        i = data.find(b"\x00\x00\x01", i + 3)
+    units = []
+    for k, (begin, payload) in enumerate(starts):
+        end = starts[k + 1][0] if k + 1 < len(starts) else len(data)
+        if payload >= end:
+            continue
+        header = data[payload]
+        kind = header & 0x1F if codec == "h264" else (header >> 1) & 0x3F
+        units.append((kind, data[begin:end]))
+    return units
+
+
+class StreamDecoder:
+    """The decoder of one stream's access units (``codec``: ``"h264"`` or ``"hevc"``)."""
+
+    def __init__(self, codec: str, max_pixels: int = 40_000_000) -> None:
+        if codec not in KEYFRAME_TYPES:
+            raise ValueError(f"codec must be 'h264' or 'hevc', got {codec!r}")
+        self.codec = codec
+        self.max_pixels = max_pixels
+        self._ctx: av.CodecContext | None = None
+        self._params: dict[int, bytes] = {}
+        self._next_seq: int | None = None
+        #: counts by outcome, and resynchronisations by cause
+        self.counts: dict[str, int] = {}
+        av.logging.set_level(av.logging.ERROR)  # let decoding errors reach the capture
+
+    @property
+    def synchronised(self) -> bool:
+        """A keyframe was decoded and nothing broke since."""
+        return self._ctx is not None
+
+    def _count(self, key: str) -> None:
+        self.counts[key] = self.counts.get(key, 0) + 1
+
+    def _resync(self, cause: str, reason: str) -> Decoded:
+        self._ctx = None
+        self._count(Outcome.RESYNC.value)
+        self._count(f"resync_{cause}")
+        return Decoded(Outcome.RESYNC, reason=reason)
+
+    def decode(self, seq: int, data: bytes) -> Decoded:
+        """Decode the access unit numbered ``seq`` of the stream."""
+        gap = self._next_seq is not None and seq != self._next_seq
+        expected, self._next_seq = self._next_seq, seq + 1
+        units = nal_units(data, self.codec)
+        if not units:
+            return self._resync("corrupt", "not an Annex B access unit (no start code)")
+        for kind, unit in units:
+            if kind in PARAMETER_TYPES[self.codec]:
+                self._params[kind] = unit
+        if gap and self._ctx is not None:
+            return self._resync("gap", f"access unit {seq} came after {expected}'s place: "
+                                "units were lost; waiting for a keyframe")
+        if self._ctx is None:
+            if not any(kind in KEYFRAME_TYPES[self.codec] for kind, _ in units):
+                self._count(Outcome.WAITING.value)
+                return Decoded(Outcome.WAITING, reason="waiting for a keyframe")
+            present = {kind for kind, _ in units}
+            missing = [u for k, u in sorted(self._params.items()) if k not in present]
+            data = b"".join(missing) + data
+            self._ctx = av.CodecContext.create(self.codec, "r")
+            self._ctx.thread_type = "NONE"
+        try:
+            with av.logging.Capture(local=False) as logs:
+                frames = self._ctx.decode(av.Packet(data))
+        except (av.FFmpegError, ValueError) as exc:
+            return self._resync("corrupt", f"damaged access unit: {exc}")
+        errors = [text.strip() for level, _, text in logs if level <= _FFMPEG_ERROR]
+        if errors:
+            return self._resync("corrupt", f"damaged access unit: {errors[0]}")
+        if not frames:
+            self._count(Outcome.NO_FRAME.value)
+            return Decoded(Outcome.NO_FRAME)
+        frame = frames[-1]
+        if frame.width * frame.height > self.max_pixels:
+            return self._resync("oversized", f"{frame.width}x{frame.height} pictures exceed "
+                                f"{self.max_pixels} pixels")
+        self._count(Outcome.FRAME.value)
+        return Decoded(Outcome.FRAME, image=frame.to_ndarray(format="bgr24"))

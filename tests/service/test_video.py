@@ -1,0 +1,114 @@
+"""One stream's H.264 / H.265 decoder: real frames encoded with libx264 / libx265 (PyAV's
+wheels), decoded as FFmpeg decodes them when nothing is lost, and resynchronised at the next
+keyframe, never smeared, when a unit is lost or damaged."""
+
+from __future__ import annotations
+
+import av
+import cv2
+import numpy as np
+import pytest
+
+from arcf.data import data_root
+from service.video import Outcome, StreamDecoder, nal_units
+
+SEQ = data_root() / "uav123_10fps" / "data_seq" / "wakeboard7"
+pytestmark = pytest.mark.skipif(not SEQ.is_dir(), reason="needs ../shared/data")
+GOP = 10
+
+
+def encode(codec: str, n: int, size: tuple[int, int]) -> list[bytes]:
+    """The first ``n`` frames of a real sequence as access units (Annex B), a keyframe every
+    ``GOP`` frames, no B-frames (a live camera's stream)."""
+    enc = av.CodecContext.create(codec, "w")
+    enc.width, enc.height = size
+    enc.pix_fmt, enc.framerate = "yuv420p", 10
+    if codec == "libx264":
+        enc.options = {"g": str(GOP), "bf": "0", "preset": "veryfast", "tune": "zerolatency",
+                       "sc_threshold": "0"}
+    else:
+        enc.options = {"x265-params": f"keyint={GOP}:min-keyint={GOP}:bframes=0:scenecut=0:"
+                       "log-level=error", "preset": "ultrafast"}
+    units = []
+    for path in sorted(SEQ.glob("*.jpg"))[:n]:
+        image = cv2.resize(cv2.imread(str(path)), size, interpolation=cv2.INTER_AREA)
+        units += [bytes(p) for p in enc.encode(av.VideoFrame.from_ndarray(image, "bgr24"))]
+    units += [bytes(p) for p in enc.encode(None)]
+    assert len(units) == n
+    return units
+
+
+@pytest.fixture(scope="module")
+def h264() -> list[bytes]:
+    return encode("libx264", 30, (640, 360))
+
+
+def plain(units: list[bytes], codec: str = "h264") -> list[np.ndarray]:
+    ctx = av.CodecContext.create(codec, "r")
+    return [f.to_ndarray(format="bgr24") for u in units for f in ctx.decode(av.Packet(u))]
+
+
+def test_an_intact_stream_decodes_as_ffmpeg_does(h264: list[bytes]) -> None:
+    dec = StreamDecoder("h264")
+    got = [dec.decode(i, u) for i, u in enumerate(h264)]
+    assert [g.outcome for g in got] == [Outcome.FRAME] * len(h264)
+    for g, want in zip(got, plain(h264), strict=True):
+        np.testing.assert_array_equal(g.image, want)
+    kinds = [[k for k, _ in nal_units(u, "h264")] for u in h264]
+    assert 7 in kinds[0] and 8 in kinds[0] and 5 in kinds[0] and 5 in kinds[GOP]
+
+
+def test_a_lost_unit_resynchronises_at_the_next_keyframe(h264: list[bytes]) -> None:
+    dec = StreamDecoder("h264")
+    out = {i: dec.decode(i, u) for i, u in enumerate(h264) if i != 13}
+    assert out[14].outcome is Outcome.RESYNC and "lost" in (out[14].reason or "")
+    assert all(out[i].outcome is Outcome.WAITING for i in range(15, 2 * GOP))
+    assert all(out[i].outcome is Outcome.FRAME for i in range(2 * GOP, len(h264)))
+    # from the keyframe on, exactly what a decoder that saw everything gives
+    for i, want in zip(range(2 * GOP, len(h264)), plain(h264)[2 * GOP:], strict=True):
+        np.testing.assert_array_equal(out[i].image, want)
+    assert dec.counts["resync_gap"] == 1 and dec.counts["waiting_for_keyframe"] == 5
+
+
+def test_a_damaged_unit_is_not_decoded_into_a_smeared_picture(h264: list[bytes]) -> None:
+    dec = StreamDecoder("h264")
+    broken = bytearray(h264[13])
+    broken[len(broken) // 2:len(broken) // 2 + 40] = bytes(40)
+    units = [*h264[:13], bytes(broken), *h264[14:]]
+    out = [dec.decode(i, u) for i, u in enumerate(units)]
+    assert out[13].outcome is Outcome.RESYNC and "damaged" in (out[13].reason or "")
+    assert all(o.outcome is Outcome.WAITING for o in out[14:2 * GOP])
+    assert all(o.outcome is Outcome.FRAME for o in out[2 * GOP:])
+    assert dec.counts["resync_corrupt"] == 1
+    # junk: no start code, or start codes and noise; never a crash, never a frame
+    junk = StreamDecoder("h264")
+    assert junk.decode(0, b"not video").outcome is Outcome.RESYNC
+    noise = np.random.default_rng(1).integers(0, 256, 5000, dtype=np.uint8).tobytes()
+    assert junk.decode(1, b"\x00\x00\x00\x01\x65" + noise).outcome in (Outcome.RESYNC,
+                                                                       Outcome.NO_FRAME)
+    assert junk.decode(2, h264[1]).outcome in (Outcome.WAITING, Outcome.RESYNC)
+
+
+def test_joining_mid_stream_and_keyframes_without_parameter_sets(h264: list[bytes]) -> None:
+    dec = StreamDecoder("h264")
+    assert dec.decode(0, h264[0]).outcome is Outcome.FRAME  # learns SPS / PPS
+    # lost until a keyframe that carries no parameter sets: they are put back in front
+    bare = b"".join(u for k, u in nal_units(h264[GOP], "h264") if k not in (7, 8))
+    assert dec.decode(5, h264[5]).outcome is Outcome.RESYNC
+    got = dec.decode(GOP, bare)
+    assert got.outcome is Outcome.FRAME
+    np.testing.assert_array_equal(got.image, plain(h264)[GOP])
+    late = StreamDecoder("h264")  # joined after the start: nothing before a keyframe
+    assert late.decode(3, h264[3]).outcome is Outcome.WAITING
+    assert late.decode(GOP, h264[GOP]).outcome is Outcome.FRAME  # parameter sets in it
+
+
+def test_h265() -> None:
+    units = encode("libx265", 12, (320, 192))
+    dec = StreamDecoder("hevc")
+    got = [dec.decode(i, u) for i, u in enumerate(units)]
+    assert [g.outcome for g in got] == [Outcome.FRAME] * 12
+    for g, want in zip(got, plain(units, "hevc"), strict=True):
+        np.testing.assert_array_equal(g.image, want)
+    with pytest.raises(ValueError):
+        StreamDecoder("vp9")
