@@ -47,8 +47,9 @@ def main(argv: list[str] | None = None) -> int:
         err = float(np.hypot(x + w / 2 - g[0] - g[2] / 2, y + h / 2 - g[1] - g[3] / 2))
         errors.append(err)
         state = r.track_state.value if r.track_state else "-"
+        confidence = f"{r.confidence:.2f}" if r.confidence is not None else "   -"
         print(f"frame {r.frame_seq:4d} {got.status:13s} box ({x:7.1f}, {y:7.1f}, {w:6.1f}, "
-              f"{h:6.1f}) {state:8s} confidence {r.confidence or 0:.2f} "
+              f"{h:6.1f}) {state:8s} confidence {confidence} "
               f"psr {r.psr:5.1f} aberrance {r.aberrance:.4f} "
               f"dropped {r.dropped} error {err:5.1f} px", flush=True)
 
