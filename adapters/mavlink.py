@@ -33,7 +33,6 @@ import logging
 import math
 import os
 import queue
-import signal
 import sys
 import threading
 import time
@@ -49,6 +48,8 @@ from pymavlink import mavutil
 from schemas import ErrorCode, Frame, Result, ResultStatus, TrackState
 from service.client import ServiceError, TrackingClient
 from service.decoding import decode_compressed
+
+from ._command import prepare
 
 log = logging.getLogger("arcf.mavlink")
 mav = mavutil.mavlink
@@ -615,7 +616,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--link-timeout", type=float, default=5.0,
                     help="seconds without a station heartbeat before the link counts as lost")
     args = ap.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
     overrides = {}
     for item in args.set:
         name, sep, value = item.partition("=")
@@ -623,9 +623,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             ap.error(f"--set needs NAME=VALUE, got {item!r}")
         overrides[name] = _value(value)
     cameras = [_camera(c, i) for i, c in enumerate(args.camera)]
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+    stop = prepare()
     with TrackingClient(connect=[args.connect]) as client:
         try:
             check_preset(client, args.preset, overrides)

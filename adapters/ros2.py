@@ -35,7 +35,6 @@ import argparse
 import hashlib
 import logging
 import queue
-import signal
 import threading
 import time
 from collections import Counter, OrderedDict
@@ -51,6 +50,7 @@ from schemas import Result, ResultStatus
 from service.client import ServiceError, TrackingClient
 
 from . import ros2_types as rt
+from ._command import prepare
 
 log = logging.getLogger("arcf.ros2")
 
@@ -414,16 +414,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--bridge-keys", action="store_true",
                     help="also the keys of zenoh-bridge-ros2dds (topic name, raw CDR)")
     args = ap.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
     images = {}
     for item in args.image:
         topic, sep, stream = item.partition("=")
         if not sep or not topic.startswith("/"):
             ap.error(f"--image needs /TOPIC=STREAM, got {item!r}")
         images[topic] = stream
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+    stop = prepare()
     from service.transport import open_session
 
     with TrackingClient(connect=[args.connect]) as client:
