@@ -154,13 +154,18 @@ class Encoding(str, Enum):
 
     ``jpeg``/``png`` are compressed files (what a ground station normally sends over a radio
     link); ``bgr8``/``gray8`` are raw row-major 8-bit pixels (OpenCV's layout, no padding), for
-    same-host producers that would only waste CPU compressing.
+    same-host producers that would only waste CPU compressing; ``h264``/``h265`` are one
+    access unit of a video stream (Annex B byte stream, start codes included), as a drone's
+    encoder sends them: each depends on the ones before it, so a stream's units are decoded in
+    order, every one, from a keyframe on (docs/wire-contract.md, "Video streams").
     """
 
     JPEG = "jpeg"
     PNG = "png"
     BGR8 = "bgr8"
     GRAY8 = "gray8"
+    H264 = "h264"
+    H265 = "h265"
 
     @property
     def is_raw(self) -> bool:
@@ -171,6 +176,11 @@ class Encoding(str, Enum):
     def channels(self) -> int | None:
         """Bytes per pixel of a raw encoding, ``None`` for compressed ones."""
         return {Encoding.BGR8: 3, Encoding.GRAY8: 1}.get(self)
+
+    @property
+    def is_video(self) -> bool:
+        """True for access units of a video stream (decoded in order, by one decoder)."""
+        return self in (Encoding.H264, Encoding.H265)
 
 
 class TrackState(str, Enum):
@@ -406,7 +416,8 @@ class Frame(Message):
         min_length=1,
         description=(
             "The image bytes, sent as msgpack bin (not base64, not a msgpack str): a JPEG/PNG "
-            "file, or width*height*channels raw bytes (bgr8: 3 channels, gray8: 1), row-major."
+            "file, width*height*channels raw bytes (bgr8: 3 channels, gray8: 1), row-major, or "
+            "one H.264/H.265 access unit in Annex B form (start codes included)."
         ),
         json_schema_extra={
             "contentEncoding": "binary",

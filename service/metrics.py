@@ -25,6 +25,11 @@ FRAMES_PROCESSED = Counter("arcf_frames_processed_total", "Frames decoded and tr
 FRAMES_DROPPED = Counter(
     "arcf_frames_dropped_total", "Frames skipped: gaps in a stream's sequence numbers"
 )
+VIDEO_RESYNCS = Counter(
+    "arcf_video_resyncs_total",
+    "Video streams resynchronised at their next keyframe, by cause (gap, corrupt, oversized)",
+    ["cause"],
+)
 RESULTS = Counter("arcf_results_published_total", "Result messages published")
 ERRORS = Counter("arcf_errors_total", "Errors by kind", ["kind"])
 CONTROL = Counter("arcf_control_requests_total", "Control requests by type and outcome",

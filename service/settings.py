@@ -54,6 +54,14 @@ class ServiceSettings:
     frame_queue: int = field(default=2, metadata=_about(
         "newest frames kept per stream; older ones are dropped (and counted) when a worker "
         "lags"))
+    video_queue: int = field(default=60, metadata=_about(
+        "access units kept per video stream (h264 / h265): each one must be decoded, so the "
+        "queue holds what arrives while the worker tracks; beyond it a unit is dropped and "
+        "the stream resynchronises at its next keyframe (counted and reported)"))
+    video_key: str = field(default="video/{stream}/stream", metadata=_about(
+        "where a stream's video also arrives as CDR foxglove.CompressedVideo access units "
+        "(BlueOS's MAVLink camera manager's convention); '{stream}' is the stream id; empty: "
+        "off"))
     max_payload: int = field(default=8 * 1024 * 1024,
                              metadata=_about("largest accepted frame payload, bytes"))
     max_sessions_per_stream: int = field(default=16,
@@ -107,6 +115,14 @@ class ServiceSettings:
             raise ValueError("worker_start_s must be > 0")
         if self.frame_queue < 1:
             raise ValueError("frame_queue must be >= 1")
+        if self.video_queue < 1:
+            raise ValueError("video_queue must be >= 1")
+        if self.video_key and (self.video_key.count("{stream}") != 1
+                               or any(c in self.video_key.replace("{stream}", "")
+                                      for c in "*$?#{}")
+                               or self.video_key.strip("/") != self.video_key):
+            raise ValueError("video_key must be a key expression without wildcards holding "
+                             f"'{{stream}}' once, got {self.video_key!r}")
         if self.max_payload < 1024:
             raise ValueError("max_payload must be at least 1024 bytes")
         if self.max_sessions < 1 or self.max_sessions_per_stream < 1:

@@ -9,8 +9,9 @@ state for one stream (PyAV, which ships FFmpeg in its wheels):
   parameter sets (SPS/PPS, and VPS for H.265), which it puts in front of a keyframe that
   comes without them after a resynchronisation;
 * a gap in the stream's numbering (a unit lost on the way) or a damaged unit (the decoder
-  raises, or reports an error while decoding it: FFmpeg would otherwise conceal the damage
-  and hand out a smeared picture) drops the decoder state and waits for the next keyframe:
+  raises, reports an error while decoding it, or reports that it concealed damage: FFmpeg
+  would otherwise hand out a smeared picture) drops the decoder state and waits for the next
+  keyframe:
   no box is ever computed on a frame decoded from a broken reference;
 * every outcome is returned with a reason, for the caller to count and report.
 
@@ -21,6 +22,7 @@ of one stream (measured in docs/benchmarks.md).
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 from enum import Enum
 
@@ -34,6 +36,9 @@ KEYFRAME_TYPES = {"h264": frozenset({5}), "hevc": frozenset(range(16, 22))}
 PARAMETER_TYPES = {"h264": frozenset({7, 8}), "hevc": frozenset({32, 33, 34})}
 #: FFmpeg's log level of a decoding error (AV_LOG_ERROR)
 _FFMPEG_ERROR = 16
+#: FFmpeg's report that it papered over damage (AV_LOG_INFO, "concealing N DC, N AC, N MV
+#: errors"): some damage raises no error at all, only this (a P-frame's residuals zeroed)
+_CONCEALED = "concealing"
 
 
 class Outcome(str, Enum):
@@ -50,8 +55,13 @@ class Decoded:
     outcome: Outcome
     #: the picture, (H, W, 3) uint8 BGR, for ``Outcome.FRAME``
     image: np.ndarray | None = None
+    #: the number of the access unit the picture was decoded from (with B-frames, an earlier
+    #: unit than the one just given), for ``Outcome.FRAME``
+    seq: int | None = None
     #: why, for ``WAITING`` and ``RESYNC``
     reason: str | None = None
+    #: what broke, for ``RESYNC``: ``gap``, ``corrupt`` or ``oversized``
+    cause: str | None = None
 
 
 def nal_units(data: bytes, codec: str) -> list[tuple[int, bytes]]:
@@ -86,7 +96,11 @@ class StreamDecoder:
         self._next_seq: int | None = None
         #: counts by outcome, and resynchronisations by cause
         self.counts: dict[str, int] = {}
-        av.logging.set_level(av.logging.ERROR)  # let decoding errors reach the capture
+        # decoding errors and concealment notices must reach the capture (outside it, PyAV
+        # hands them to Python's logging, where the "libav" logger's level filters them)
+        av.logging.set_level(av.logging.INFO)
+        if logging.getLogger("libav").level == logging.NOTSET:
+            logging.getLogger("libav").setLevel(logging.WARNING)
 
     @property
     def synchronised(self) -> bool:
@@ -100,7 +114,7 @@ class StreamDecoder:
         self._ctx = None
         self._count(Outcome.RESYNC.value)
         self._count(f"resync_{cause}")
-        return Decoded(Outcome.RESYNC, reason=reason)
+        return Decoded(Outcome.RESYNC, reason=reason, cause=cause)
 
     def decode(self, seq: int, data: bytes) -> Decoded:
         """Decode the access unit numbered ``seq`` of the stream."""
@@ -126,10 +140,13 @@ class StreamDecoder:
             self._ctx.thread_type = "NONE"
         try:
             with av.logging.Capture(local=False) as logs:
-                frames = self._ctx.decode(av.Packet(data))
+                packet = av.Packet(data)
+                packet.pts = seq  # comes back on the picture: which unit it is
+                frames = self._ctx.decode(packet)
         except (av.FFmpegError, ValueError) as exc:
             return self._resync("corrupt", f"damaged access unit: {exc}")
-        errors = [text.strip() for level, _, text in logs if level <= _FFMPEG_ERROR]
+        errors = [text.strip() for level, _, text in logs
+                  if level <= _FFMPEG_ERROR or text.startswith(_CONCEALED)]
         if errors:
             return self._resync("corrupt", f"damaged access unit: {errors[0]}")
         if not frames:
@@ -140,4 +157,5 @@ class StreamDecoder:
             return self._resync("oversized", f"{frame.width}x{frame.height} pictures exceed "
                                 f"{self.max_pixels} pixels")
         self._count(Outcome.FRAME.value)
-        return Decoded(Outcome.FRAME, image=frame.to_ndarray(format="bgr24"))
+        return Decoded(Outcome.FRAME, image=frame.to_ndarray(format="bgr24"),
+                       seq=seq if frame.pts is None else int(frame.pts))

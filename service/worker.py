@@ -11,6 +11,7 @@ sleeps on that wake-up instead of polling, so it costs no CPU.
 from __future__ import annotations
 
 import logging
+import re
 import threading
 import time
 from collections import deque
@@ -44,7 +45,9 @@ from .commands import (
     StopSession,
 )
 from .decoding import decode_image
+from .foxglove import VIDEO_FORMATS, parse_compressed_video
 from .intake import Numbering, TokenBucket, Verdict
+from .video import Outcome, StreamDecoder
 
 log = logging.getLogger("arcf.service.worker")
 
@@ -82,6 +85,12 @@ class _CommandRefused(Exception):
         self.code = code
 
 
+#: a frame message's encoding, as msgpack spells a video one (a 4-byte str), looked for in the
+#: first ``_HEAD`` bytes of the message, where the schema's field order puts it before payload
+_VIDEO_MARK = re.compile(rb"\xa8encoding\xa4h26[45]")
+_HEAD = 256
+
+
 class _Inbox:
     """The newest frames of one stream: filled by Zenoh's callback thread, drained by the loop.
 
@@ -89,13 +98,25 @@ class _Inbox:
     own (a wildcard put reaches every stream's subscriber) is refused and counted
     (``invalid_key``), and the stream's rate limit refuses the excess of a flood, counted
     (``rate_limited``) and reported by the loop, instead of the queue silently trimming it.
-    ``deque.append``/``popleft`` are atomic, and a full deque drops its oldest entry, which is
-    the drop-oldest policy a live video stream wants."""
+    ``deque.append``/``popleft`` are atomic, and trimming from the left drops the oldest
+    entries, which is the drop-oldest policy a live video stream wants: an image stream keeps
+    its newest ``frame_queue`` frames; a video stream (h264 / h265 units, or anything on its
+    CompressedVideo key) ``video_queue`` units, since each one must reach the decoder.
 
-    def __init__(self, key: str, maxlen: int, rate: float, max_payload: int,
-                 wake: threading.Event, metrics: Any) -> None:
+    Units on the CompressedVideo key carry no number: they are numbered here, as they arrive
+    (refused ones included), so that a unit lost to the rate limit or the queue shows as a gap
+    to the decoder, which then waits for a keyframe instead of decoding from a broken chain."""
+
+    def __init__(self, key: str, video_key: str | None, image_queue: int, video_queue: int,
+                 rate: float, max_payload: int, wake: threading.Event, metrics: Any) -> None:
         self.key = key
-        self.frames: deque[tuple[bytes, int]] = deque(maxlen=maxlen)
+        self.video_key = video_key
+        self.frames: deque[tuple[bytes, int, str, int | None]] = deque(
+            maxlen=max(image_queue, video_queue))
+        self.image_queue, self.video_queue = image_queue, video_queue
+        #: entries kept: ``image_queue`` until the stream turns out to be video
+        self.limit = image_queue
+        self.video_seq = 0
         self.bucket = TokenBucket(rate)
         self.max_payload = max_payload
         self.wake = wake
@@ -105,9 +126,22 @@ class _Inbox:
                                               ErrorCode.OVERSIZED_PAYLOAD: 0}
 
     def __call__(self, sample: Any) -> None:
+        """A sample on the stream's frames key (a ``frame`` message)."""
         if str(sample.key_expr) != self.key:
             self.metrics.ERRORS.labels(kind=ErrorCode.INVALID_KEY.value).inc()
             return
+        self._take(sample, "frame", None)
+
+    def video(self, sample: Any) -> None:
+        """A sample on the stream's CompressedVideo key (CDR)."""
+        if str(sample.key_expr) != self.video_key:
+            self.metrics.ERRORS.labels(kind=ErrorCode.INVALID_KEY.value).inc()
+            return
+        self.limit = self.video_queue
+        seq, self.video_seq = self.video_seq, self.video_seq + 1
+        self._take(sample, "compressed_video", seq)
+
+    def _take(self, sample: Any, source: str, seq: int | None) -> None:
         self.metrics.FRAMES_RECEIVED.inc()
         # the size first, without copying: an oversized message never takes a place in the
         # queue, nor memory (a frame message is its payload plus a few dozen bytes)
@@ -116,7 +150,18 @@ class _Inbox:
         elif not self.bucket.take(time.monotonic()):
             self._refuse(ErrorCode.RATE_LIMITED)
         else:
-            self.frames.append((sample.payload.to_bytes(), time.time_ns()))
+            data = sample.payload.to_bytes()
+            if source == "frame" and self.limit != self.video_queue and _VIDEO_MARK.search(
+                    data, 0, _HEAD):
+                # a video unit: the whole group of pictures must be kept from the first one
+                # (the loop confirms it when it decodes the message, whatever its field order)
+                self.limit = self.video_queue
+            self.frames.append((data, time.time_ns(), source, seq))
+            while len(self.frames) > self.limit:
+                try:
+                    self.frames.popleft()  # the gap shows in the numbers, and is counted
+                except IndexError:  # the loop took it meanwhile
+                    break
             self.wake.set()
 
     def _refuse(self, code: ErrorCode) -> None:
@@ -124,11 +169,26 @@ class _Inbox:
         self.refused[code] += 1
         self.wake.set()
 
-    def pop(self) -> tuple[bytes, int] | None:
+    def pop(self) -> tuple[bytes, int, str, int | None] | None:
         try:
             return self.frames.popleft()
         except IndexError:
             return None
+
+
+@dataclass
+class _Picture:
+    """What one frame (or video access unit) of a stream gave the trackers: pixels, or why
+    there are none (``code``, ``text``)."""
+
+    seq: int
+    capture_ts_ns: int
+    received_ns: int
+    decode_s: float
+    #: (H, W, 3) or (H, W) uint8, BGR or grey; None when the frame gave nothing to track
+    image: np.ndarray | None
+    code: ErrorCode | None = None
+    text: str | None = None
 
 
 @dataclass
@@ -143,6 +203,13 @@ class _Stream:
     noticed: dict[ErrorCode, float] = field(default_factory=dict)
     #: frames refused at intake already reported, by code
     reported: dict[ErrorCode, int] = field(default_factory=dict)
+    #: the subscriber of the stream's CompressedVideo key (``video_key``), if any
+    video_subscriber: Any = None
+    #: the stream's video decoder, from its first h264 / h265 unit on
+    decoder: StreamDecoder | None = None
+    #: (capture, arrival) times of the units in the decoder, by number, until their picture
+    #: comes out (bounded: units whose picture never comes are forgotten oldest first)
+    unit_times: dict[int, tuple[int, int]] = field(default_factory=dict)
 
 
 def _warm_up() -> None:
@@ -355,14 +422,17 @@ class Worker:
             self._check_frame_seq(stream, cmd.frame_seq)
         if stream is None:
             s = self.settings
-            inbox = _Inbox(self.keys.frames(stream_id), s.frame_queue, s.max_stream_fps,
-                           s.max_payload, self.wake, self.metrics)
+            video_key = s.video_key.replace("{stream}", stream_id) if s.video_key else None
+            inbox = _Inbox(self.keys.frames(stream_id), video_key, s.frame_queue, s.video_queue,
+                           s.max_stream_fps, s.max_payload, self.wake, self.metrics)
             sub = self.session.declare_subscriber(self.keys.frames(stream_id), inbox)
             errors = self.session.declare_publisher(
                 self.keys.errors(stream_id), congestion_control=self.zenoh.CongestionControl.DROP)
             stream = self.streams[stream_id] = _Stream(
                 stream_id, sub, inbox, errors,
                 Numbering(s.max_seq_gap, s.resync_frames, rate=s.max_stream_fps))
+            if video_key:
+                stream.video_subscriber = self.session.declare_subscriber(video_key, inbox.video)
             self.metrics.STREAMS.inc()
         pub = self.session.declare_publisher(
             self.keys.results(stream_id, cmd.session_id),
@@ -420,6 +490,8 @@ class Worker:
 
     def _drop_stream(self, stream: _Stream) -> None:
         stream.subscriber.undeclare()
+        if stream.video_subscriber is not None:
+            stream.video_subscriber.undeclare()
         stream.errors.undeclare()
         del self.streams[stream.stream_id]
         self.metrics.STREAMS.dec()
@@ -458,54 +530,149 @@ class Worker:
                 code=code, stream_id=stream.stream_id,
                 message=f"{why}: {refused} frame(s) refused since the last notice")))
 
-    def _process(self, stream: _Stream, payload: bytes, received_ns: int) -> None:
+    def _process(self, stream: _Stream, payload: bytes, received_ns: int,
+                 source: str = "frame", unit_seq: int | None = None) -> None:
+        """Take one queued frame and run the stream's sessions on what it gave. A video
+        stream's queued units are all decoded first (a P-frame cannot be skipped), and only
+        the newest picture is tracked: overload drops tracking work, never decoder state."""
+        picture = self._ingest(stream, payload, received_ns, source, unit_seq)
+        # what is queued now, not what keeps coming: a stream whose units arrive faster than
+        # they decode must not hold the loop (its queue overflows instead: a counted resync)
+        for _ in range(len(stream.inbox.frames) if stream.decoder is not None else 0):
+            item = stream.inbox.pop()
+            if item is None:
+                break
+            newer = self._ingest(stream, *item)
+            if newer is not None:
+                if picture is not None and picture.image is not None:
+                    self.metrics.FRAMES_DROPPED.inc()  # decoded, superseded, not tracked
+                picture = newer
+        if picture is not None:
+            self._track(stream, picture)
+
+    def _ingest(self, stream: _Stream, payload: bytes, received_ns: int, source: str,
+                unit_seq: int | None) -> _Picture | None:
+        """Check and decode one queued frame: its picture, an error to give the sessions, or
+        None (refused before reaching them, or a unit whose picture is not out yet)."""
+        if source == "compressed_video":
+            return self._ingest_compressed_video(stream, payload, received_ns, unit_seq or 0)
         m = self.metrics
         try:
             frame = decode(payload, expected=Frame, max_payload=self.settings.max_payload)
         except SchemaError as exc:
             self._error(stream, exc.code, str(exc), None)
-            return
+            return None
         if frame.stream_id != stream.stream_id:
             self._error(stream, ErrorCode.INVALID_KEY,
                         f"frame says stream {frame.stream_id!r} on {stream.stream_id!r}", frame.seq)
-            return
+            return None
+        if not self._admit(stream, frame.seq):
+            return None
+        if frame.encoding.is_video:
+            stream.inbox.limit = stream.inbox.video_queue
+            codec = "h264" if frame.encoding == "h264" else "hevc"
+            return self._decode_unit(stream, frame.seq, frame.capture_ts_ns, received_ns,
+                                     codec, frame.payload)
+        stream.decoder, stream.inbox.limit = None, stream.inbox.image_queue
+        stream.unit_times.clear()
+        t0 = time.perf_counter()
+        image, problem = decode_image(frame, self.settings.max_pixels)
+        decode_s = time.perf_counter() - t0
+        m.DECODE.observe(decode_s)
+        if image is not None:
+            return _Picture(frame.seq, frame.capture_ts_ns, received_ns, decode_s, image)
+        code, text = problem or (ErrorCode.DECODE_ERROR, f"cannot decode {frame.encoding} frame")
+        self._error(stream, code, text, frame.seq)
+        return _Picture(frame.seq, frame.capture_ts_ns, received_ns, decode_s, None, code, text)
+
+    def _ingest_compressed_video(self, stream: _Stream, payload: bytes, received_ns: int,
+                                 seq: int) -> _Picture | None:
+        """A CDR foxglove.CompressedVideo from the stream's ``video_key``: numbered on arrival
+        (``_Inbox.video``), stamped with its own ``timestamp``."""
+        try:
+            unit = parse_compressed_video(payload)
+        except ValueError as exc:
+            self._error(stream, ErrorCode.DECODE_ERROR, str(exc), seq)
+            return None
+        codec = VIDEO_FORMATS.get(unit.format)
+        if codec is None:
+            self._error(stream, ErrorCode.DECODE_ERROR, f"CompressedVideo format "
+                        f"{unit.format[:40]!r} is not h264 or h265", seq)
+            return None
+        if not self._admit(stream, seq):
+            return None
+        return self._decode_unit(stream, seq, unit.timestamp_ns, received_ns, codec, unit.data)
+
+    def _admit(self, stream: _Stream, seq: int) -> bool:
+        """The stream's numbering: a plausible next frame (the skipped numbers counted as
+        lost), else refused and reported."""
         last, now = stream.numbering.last, time.monotonic()
-        verdict, lost = stream.numbering.admit(frame.seq, now)
+        verdict, lost = stream.numbering.admit(seq, now)
         if verdict is Verdict.STALE:
             # duplicate or out of order: tracking it would move the trackers back in time
-            self._error(stream, ErrorCode.STALE_FRAME, f"frame {frame.seq} is not after frame "
-                        f"{last}; dropped", frame.seq, every_s=1.0)
-            return
+            self._error(stream, ErrorCode.STALE_FRAME, f"frame {seq} is not after frame "
+                        f"{last}; dropped", seq, every_s=1.0)
+            return False
         if verdict is Verdict.JUMP:
             gap = stream.numbering.plausible_gap(now)
             why = (f"max_seq_gap {gap}" if gap >= self.settings.max_seq_gap else
                    f"what {self.settings.max_stream_fps:g} frames/s could have sent since, "
                    f"plus {stream.numbering.slack}")
-            self._error(stream, ErrorCode.SEQUENCE_JUMP, f"frame {frame.seq} is more than "
+            self._error(stream, ErrorCode.SEQUENCE_JUMP, f"frame {seq} is more than "
                         f"{gap} frames after frame {last} ({why}); dropped (a restarted "
                         f"numbering is followed once {self.settings.resync_frames} frames in a "
-                        "row agree)", frame.seq, every_s=1.0)
-            return
+                        "row agree)", seq, every_s=1.0)
+            return False
         if verdict is Verdict.RESTART:
             self._error(stream, ErrorCode.SEQUENCE_RESTARTED, f"the stream's numbering "
-                        f"restarted: frame {frame.seq} follows frame {last}; no frame counted "
-                        "as lost", frame.seq, count=False)
+                        f"restarted: frame {seq} follows frame {last}; no frame counted "
+                        "as lost", seq, count=False)
             for s in stream.sessions.values():  # their ``dropped`` counts from here
                 if s.last_seq is not None:
-                    s.last_seq = frame.seq - 1
-        m.FRAMES_DROPPED.inc(lost)
+                    s.last_seq = seq - 1
+        self.metrics.FRAMES_DROPPED.inc(lost)
+        return True
+
+    def _decode_unit(self, stream: _Stream, seq: int, capture_ts_ns: int, received_ns: int,
+                     codec: str, data: bytes) -> _Picture | None:
+        """One access unit through the stream's decoder (made at its first unit, remade if
+        the codec changes). A unit that cannot be decoded (no keyframe yet, a gap, damage)
+        is an error for the sessions, reported on the stream and counted, and the decoder
+        waits for the next keyframe."""
+        if stream.decoder is None or stream.decoder.codec != codec:
+            stream.decoder = StreamDecoder(codec, self.settings.max_pixels)
+            stream.unit_times.clear()
+        times = stream.unit_times
+        times[seq] = (capture_ts_ns, received_ns)
+        while len(times) > 2 * self.settings.video_queue:
+            del times[next(iter(times))]
         t0 = time.perf_counter()
-        image, problem = decode_image(frame, self.settings.max_pixels)
+        out = stream.decoder.decode(seq, data)
         decode_s = time.perf_counter() - t0
-        m.DECODE.observe(decode_s)
-        if image is None:
-            code, text = problem or (ErrorCode.DECODE_ERROR,
-                                     f"cannot decode {frame.encoding} frame")
-            self._error(stream, code, text, frame.seq)
-        else:
+        self.metrics.DECODE.observe(decode_s)
+        if out.outcome is Outcome.FRAME:
+            seq = out.seq if out.seq is not None else seq
+            capture_ts_ns, received_ns = times.pop(seq, (capture_ts_ns, received_ns))
+            return _Picture(seq, capture_ts_ns, received_ns, decode_s, out.image)
+        if out.outcome is Outcome.NO_FRAME:
+            return None
+        times.pop(seq, None)
+        if out.outcome is Outcome.RESYNC:
+            self.metrics.VIDEO_RESYNCS.labels(cause=out.cause or "corrupt").inc()
+        text = f"video unit {seq}: {out.reason}"
+        self._error(stream, ErrorCode.DECODE_ERROR, text, seq)
+        return _Picture(seq, capture_ts_ns, received_ns, decode_s, None,
+                        ErrorCode.DECODE_ERROR, text)
+
+    def _track(self, stream: _Stream, picture: _Picture) -> None:
+        """Every session of the stream on one picture (or told why there is none)."""
+        m = self.metrics
+        image, decode_s, received_ns = picture.image, picture.decode_s, picture.received_ns
+        code, text = picture.code, picture.text
+        if image is not None:
             m.FRAMES_PROCESSED.inc()
         for s in list(stream.sessions.values()):
-            dropped = 0 if s.last_seq is None else max(frame.seq - s.last_seq - 1, 0)
+            dropped = 0 if s.last_seq is None else max(picture.seq - s.last_seq - 1, 0)
             status, message, r = "tracking", None, None
             error_code: ErrorCode | None = None
             unusable_box = False
@@ -514,13 +681,13 @@ class Worker:
                 status, message = "error", text
                 error_code = code
             elif s.pending_box is not None and (
-                s.pending_seq is None or frame.seq >= s.pending_seq
+                s.pending_seq is None or picture.seq >= s.pending_seq
             ):
                 try:
                     r = s.tracker.init(image, s.pending_box)
                     status = s.pending_status
-                    if s.pending_seq is not None and frame.seq > s.pending_seq:
-                        message = (f"box of frame {s.pending_seq} applied to frame {frame.seq}"
+                    if s.pending_seq is not None and picture.seq > s.pending_seq:
+                        message = (f"box of frame {s.pending_seq} applied to frame {picture.seq}"
                                    ", the first this session saw at or after it")
                 except ARCFError as exc:
                     status, message = "error", str(exc)
@@ -538,13 +705,13 @@ class Worker:
             track_s = time.perf_counter() - t1
             cpu_s = time.thread_time() - c1
             m.TRACK.observe(track_s)
-            s.last_seq = frame.seq
+            s.last_seq = picture.seq
             s.frames += 1
             nan = float("nan")
             published = time.time_ns()
             result = Result(
-                session_id=s.session_id, stream_id=s.stream_id, frame_seq=frame.seq,
-                capture_ts_ns=frame.capture_ts_ns,
+                session_id=s.session_id, stream_id=s.stream_id, frame_seq=picture.seq,
+                capture_ts_ns=picture.capture_ts_ns,
                 box=list(r.box) if r else [nan, nan, nan, nan],
                 peak=r.peak if r else nan, psr=r.psr if r else nan,
                 aberrance=r.aberrance if r else nan,
@@ -559,11 +726,11 @@ class Worker:
             )
             s.publisher.put(encode(result))
             m.RESULTS.inc()
-            if frame.capture_ts_ns > 0:
-                m.END_TO_END.observe(max(published - frame.capture_ts_ns, 0) / 1e9)
+            if picture.capture_ts_ns > 0:
+                m.END_TO_END.observe(max(published - picture.capture_ts_ns, 0) / 1e9)
             s.last_activity, s.last_result_ns = time.monotonic(), published
             if unusable_box:  # no tracker to run: the session ends, saying so
-                self._end(s, f"session ended: its box does not fit frame {frame.seq} "
+                self._end(s, f"session ended: its box does not fit frame {picture.seq} "
                           f"({message})", ErrorCode.INVALID_BOX)
                 continue
             if r is None:  # nothing tracked: no cost to weigh (junk cannot dilute the mean)

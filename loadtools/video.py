@@ -1,0 +1,47 @@
+"""A drone camera's video, made from a sequence's frames: H.264 / H.265 access units as a live
+encoder sends them (libx264 / libx265, which PyAV ships in its wheels), and the pictures a
+decoder that received every unit gives back (what "the library on the decoded frames" means
+in the tests and benchmarks)."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+import av
+import numpy as np
+
+#: codec name on the wire (frame ``encoding``, CompressedVideo ``format``) -> FFmpeg's names
+CODECS = {"h264": ("libx264", "h264"), "h265": ("libx265", "hevc")}
+
+
+def encode_video(images: Iterable[np.ndarray], codec: str = "h264", fps: int = 30,
+                 gop: int = 30, crf: int = 23) -> list[bytes]:
+    """BGR ``(H, W, 3)`` uint8 images as Annex B access units, one per image: a keyframe
+    every ``gop`` images, no B-frames, no scene-cut keyframes (a live camera's low-latency
+    stream, whose keyframes come at a fixed interval)."""
+    encoder_name = CODECS[codec][0]
+    enc: av.VideoCodecContext | None = None
+    units: list[bytes] = []
+    for image in images:
+        if enc is None:
+            enc = av.CodecContext.create(encoder_name, "w")
+            enc.height, enc.width = image.shape[:2]
+            enc.pix_fmt, enc.framerate = "yuv420p", fps
+            if codec == "h264":
+                enc.options = {"g": str(gop), "bf": "0", "preset": "veryfast",
+                               "tune": "zerolatency", "sc_threshold": "0", "crf": str(crf)}
+            else:
+                enc.options = {"preset": "ultrafast", "crf": str(crf),
+                               "x265-params": f"keyint={gop}:min-keyint={gop}:bframes=0:"
+                                              "scenecut=0:log-level=error"}
+        frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(image), format="bgr24")
+        units += [bytes(p) for p in enc.encode(frame)]
+    if enc is not None:
+        units += [bytes(p) for p in enc.encode(None)]
+    return units
+
+
+def decode_video(units: Iterable[bytes], codec: str = "h264") -> list[np.ndarray]:
+    """Every picture of a stream of access units, by one plain FFmpeg decoder, as BGR."""
+    dec = av.CodecContext.create(CODECS[codec][1], "r")
+    return [f.to_ndarray(format="bgr24") for u in units for f in dec.decode(av.Packet(u))]
