@@ -90,6 +90,28 @@ def cmd_score(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_recording(args: argparse.Namespace) -> int:
+    """Score the sessions of an ``arcf-record`` recording (``arcf.eval.recording``)."""
+    from .recording import read_recording, score_recording
+
+    try:
+        scores = score_recording(args.recording, args.groundtruth, session=args.session,
+                                 convention=args.convention)
+        sessions = read_recording(args.recording)
+    except (DatasetError, ValueError, FileNotFoundError) as exc:
+        raise SystemExit(f"arcf eval recording: {exc}") from exc
+    except ImportError as exc:
+        raise SystemExit("arcf eval recording: needs the mcap package (pip install mcap)"
+                         ) from exc
+    print("| session | stream | frames with a box | precision@20 | AUC |\n"
+          "| --- | --- | --- | --- | --- |")
+    for sid, score in scores.items():
+        rec = sessions[sid]
+        print(f"| {sid} | {rec.stream_id} | {rec.tracked}/{score.n_frames} | "
+              f"{score.precision20:.3f} | {score.auc:.3f} |")
+    return 0
+
+
 def cmd_failure(args: argparse.Namespace) -> int:
     """How well the run's track states flag its failures (``arcf.eval.failure``)."""
     from .failure import pool, pr_curve, score_folder_failures
@@ -169,6 +191,13 @@ def add_parser(sub: argparse._SubParsersAction, parse_override: Any) -> None:  #
     s.add_argument("--convention", choices=("toolkit", "clean"), default="toolkit")
     s.add_argument("--sequences", help="comma-separated subset")
     s.set_defaults(func=cmd_score)
+
+    rc = esub.add_parser("recording", help="score the sessions of an arcf-record recording")
+    rc.add_argument("recording", nargs="+", help="the recording's MCAP file(s)")
+    rc.add_argument("groundtruth", help="ground-truth file (line k + 1 = frame_seq k)")
+    rc.add_argument("--session", help="only this session (default: every session)")
+    rc.add_argument("--convention", choices=("toolkit", "clean"), default="toolkit")
+    rc.set_defaults(func=cmd_recording)
 
     f = esub.add_parser("failure", help="how well a run's track states flag its failures")
     f.add_argument("results", help="an arcf eval run folder (<sequence>.txt and _details.csv)")

@@ -1,0 +1,159 @@
+"""``arcf-record`` against a real service: every frame and every result of a stream lands in
+MCAP files an MCAP reader reads back, in Foxglove's schemas (CDR, ros2msg); the recording
+re-scores as the library's run on the same frames; disk use stays within its cap."""
+
+from __future__ import annotations
+
+import json
+import queue
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("zenoh")
+pytest.importorskip("mcap")
+
+from mcap.reader import make_reader
+
+import arcf
+from adapters.record import Recorder
+from arcf.eval import load_dataset
+from arcf.eval.metrics import score_sequence
+from arcf.eval.recording import score_recording
+from loadtools.procs import ServiceProcess
+from loadtools.video import decode_video, encode_video
+from service import foxglove
+from service.client import TrackingClient
+from service.decoding import decode_compressed
+
+pytestmark = pytest.mark.integration
+N = 20
+
+
+@pytest.fixture(scope="module")
+def clip():
+    try:
+        (seq,) = load_dataset("uav123_10fps", sequences=["wakeboard7"])
+    except (FileNotFoundError, KeyError):
+        pytest.skip("needs ../shared/data")
+    return seq, [p.read_bytes() for p in seq.frames[:N]]
+
+
+@pytest.fixture(scope="module")
+def service():
+    svc = ServiceProcess(workers=1)
+    yield svc
+    svc.stop()
+
+
+def replay(client: TrackingClient, stream: str, frames: list[bytes], box, presets: list[str],
+           encoding: str = "jpeg") -> list:
+    """Sessions of ``presets`` on the stream; frame i sent once every session answered i - 1."""
+    results = client.results(stream)
+    for preset in presets:
+        client.start(stream, box, preset=preset, frame_seq=0)
+    got: list = []
+    for i, data in enumerate(frames):
+        client.publish_frame(stream, data=data, encoding=encoding, seq=i)
+        deadline = time.monotonic() + 30
+        while sum(r.frame_seq == i for r in got) < len(presets) and time.monotonic() < deadline:
+            try:
+                got.append(results.get(timeout=1.0))
+            except queue.Empty:
+                continue
+    time.sleep(0.3)  # the recorder hears the last result too
+    return got
+
+
+def messages(paths: list[Path]) -> dict[str, list]:
+    by_topic: dict[str, list] = {}
+    for path in paths:
+        with open(path, "rb") as f:
+            for schema, channel, message in make_reader(f).iter_messages():
+                by_topic.setdefault(channel.topic, []).append((schema, channel, message))
+    return by_topic
+
+
+def test_every_frame_and_result_is_recorded_in_foxglove_schemas(service, clip,
+                                                                tmp_path: Path) -> None:
+    seq, frames = clip
+    with TrackingClient(connect=[service.endpoint], frame_congestion="block") as client:
+        with Recorder(client, "rec", tmp_path) as recorder:
+            got = replay(client, "rec", frames, seq.init_box, ["bacf", "arcf-h"])
+        files = recorder.files
+    assert len(got) == 2 * N and recorder.frames == N and recorder.results == 2 * N
+    topics = messages(files)
+    images = topics["/arcf/rec/image"]
+    schema, channel, _ = images[0]
+    assert (schema.name, schema.encoding, channel.message_encoding) == (
+        "foxglove_msgs/CompressedImage", "ros2msg", "cdr")
+    assert "MSG: builtin_interfaces/Time" in schema.data.decode()
+    decoded = [foxglove.deserialize(m.data, foxglove.COMPRESSED_IMAGE) for _, _, m in images]
+    assert [bytes(d.data) for d in decoded] == frames  # every frame, as sent
+    assert all(d.format == "jpeg" and d.frame_id == "rec" for d in decoded)
+    results = [json.loads(m.data) for _, _, m in topics["/arcf/rec/results"]]
+    assert len(results) == 2 * N
+    by_key = {(r.session_id, r.frame_seq): r for r in got}
+    for r in results:
+        np.testing.assert_allclose(r["box"], by_key[r["session_id"], r["frame_seq"]].box)
+    # each session's boxes as annotations, on the timestamp of the frame they belong to
+    for sid in {r.session_id for r in got}:
+        notes = topics[f"/arcf/rec/sessions/{sid}/annotations"]
+        assert len(notes) == N
+        for _, _, m in notes:
+            a = foxglove.deserialize(m.data, foxglove.IMAGE_ANNOTATIONS)
+            (box,) = a.points
+            r = next(r for r in got if r.session_id == sid and
+                     r.capture_ts_ns == m.publish_time)
+            x, y, w, h = r.box
+            assert box.type == 2 and [(p.x, p.y) for p in box.points] == [
+                (x - 1, y - 1), (x - 1 + w, y - 1), (x - 1 + w, y - 1 + h), (x - 1, y - 1 + h)]
+            assert a.texts[0].text.startswith(sid[:8])
+
+
+def test_a_recording_rescores_as_the_library_on_the_same_frames(service, clip,
+                                                                tmp_path: Path) -> None:
+    seq, frames = clip
+    gt = np.asarray(seq.groundtruth[:N], dtype=float)
+    gt_file = tmp_path / "gt.txt"
+    gt_file.write_text("".join(",".join(f"{v:g}" for v in row) + "\n" for row in gt))
+    with TrackingClient(connect=[service.endpoint], frame_congestion="block") as client, \
+            Recorder(client, "rescore", tmp_path / "rec") as recorder:
+        replay(client, "rescore", frames, seq.init_box, ["bacf"])
+    (score,) = score_recording(recorder.files, gt_file).values()
+    library = arcf.run_sequence(arcf.create_tracker("bacf"),
+                                (decode_compressed(f) for f in frames), seq.init_box).boxes
+    want = score_sequence(library, gt)
+    assert score.auc == pytest.approx(want.auc, abs=1e-12)
+    assert score.precision20 == pytest.approx(want.precision20, abs=1e-12)
+
+
+def test_a_video_stream_is_recorded_unit_by_unit(service, clip, tmp_path: Path) -> None:
+    seq, frames = clip
+    units = encode_video((decode_compressed(f) for f in frames), "h264", gop=10)
+    with TrackingClient(connect=[service.endpoint], frame_congestion="block") as client, \
+            Recorder(client, "vid", tmp_path) as recorder:
+        replay(client, "vid", units, seq.init_box, ["bacf"], encoding="h264")
+    topics = messages(recorder.files)
+    video = [foxglove.deserialize(m.data, foxglove.COMPRESSED_VIDEO)
+             for _, _, m in topics["/arcf/vid/video"]]
+    assert [bytes(v.data) for v in video] == units and {v.format for v in video} == {"h264"}
+    assert len(decode_video(units)) == N
+    assert len(topics["/arcf/vid/results"]) == N
+
+
+def test_disk_use_is_capped_by_rotation(service, clip, tmp_path: Path) -> None:
+    seq, frames = clip
+    with TrackingClient(connect=[service.endpoint], frame_congestion="block") as client, \
+            Recorder(client, "rot", tmp_path, segment_bytes=256 << 10, keep=2) as recorder:
+        replay(client, "rot", frames, seq.init_box, ["bacf"])
+    kept = sorted(tmp_path.glob("rot-*.mcap"))
+    assert len(recorder.files) > 3 and len(kept) == 2  # rotated, the oldest deleted
+    assert kept == recorder.files[-2:]
+    assert sum(p.stat().st_size for p in kept) < 2 * (256 << 10) + 2 * max(map(len, frames))
+    topics = messages(kept)  # each kept file is complete and readable on its own
+    images = topics["/arcf/rot/image"]
+    assert [bytes(foxglove.deserialize(m.data, foxglove.COMPRESSED_IMAGE).data)
+            for _, _, m in images] == frames[-len(images):]
