@@ -81,7 +81,12 @@ class StreamTap:
             video_key.replace("{stream}", stream_id), video) if video_key else None)
 
     def close(self) -> None:
-        for sub in (self._frames, self._results):
-            sub.close()
-        if self._video is not None:
-            self._video.undeclare()
+        """Undeclare the subscribers (already gone with a closed client: nothing to do)."""
+        for undeclare in (self._frames.close, self._results.close,
+                          self._video.undeclare if self._video is not None else None):
+            if undeclare is None:
+                continue
+            try:
+                undeclare()
+            except Exception:  # the client's session closed first
+                log.debug("subscriber of %s already gone", self.stream_id, exc_info=True)

@@ -1,0 +1,427 @@
+"""``arcf-view``: a live view of the service in a browser: streams, sessions, boxes, signals.
+
+    arcf-view                          # http://127.0.0.1:8090, the service on 127.0.0.1:7447
+    arcf-view -e tcp/10.0.0.5:7447 --host 0.0.0.0 --port 8090 --max-fps 5 --max-width 960
+
+A companion command, not part of the service: it listens to the streams like any station (the
+service spends nothing on it) and serves one page of plain HTML and JavaScript from this
+package (no build step, no CDN: it works on an offline ground station). The page lists the
+live streams and their sessions (the service's ``status``) and, for the stream chosen, shows
+its video with every session's box, state and confidence drawn on it, and scrolls each
+session's confidence and aberrance.
+
+Its cost is bounded and paid only while someone watches: a stream is listened to from the
+first viewer's arrival to the last one's departure; pictures are rendered (decoded, scaled to
+``--max-width``, boxes drawn, JPEG-encoded) at most ``--max-fps`` times a second, once for all
+its viewers, and each viewer fetches the newest one when it has shown the last. A video
+stream's access units must all be decoded while it is watched (one decoder, as in the
+service). It binds to loopback unless ``--host``
+says otherwise: anyone who reaches the page sees the video.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import re
+import threading
+import time
+from collections import OrderedDict, deque
+from collections.abc import Sequence
+from http import HTTPStatus
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from importlib import resources
+from typing import Any
+
+import cv2
+import numpy as np
+
+from schemas import Result
+from service.client import TrackingClient
+from service.decoding import decode_compressed
+from service.video import Outcome, StreamDecoder
+
+from ._command import prepare
+from .record import PALETTE
+from .tap import DEFAULT_VIDEO_KEY, StreamTap, TapFrame
+
+log = logging.getLogger("arcf.adapters.liveview")
+_STREAM = re.compile(r"^/api/streams/([A-Za-z0-9_.-]{1,64})/(frame\.jpg|results)$")
+_STATIC = {"/": ("view.html", "text/html; charset=utf-8"),
+           "/view.js": ("view.js", "text/javascript; charset=utf-8"),
+           "/view.css": ("view.css", "text/css; charset=utf-8")}
+#: recent frames kept per watched stream, to draw a result on the frame it belongs to
+_RECENT = 8
+#: results kept per watched stream for a viewer that connects (the plot's history)
+_HISTORY = 600
+
+
+def colour_bgr(index: int) -> tuple[int, int, int]:
+    r, g, b, _ = PALETTE[index % len(PALETTE)]
+    return int(255 * b), int(255 * g), int(255 * r)
+
+
+def draw(picture: np.ndarray, results: list[tuple[int, Result]], scale: float) -> np.ndarray:
+    """The picture with each session's box (its colour; thinner unless ``tracking``) and a
+    label: session, state, confidence."""
+    out = picture if picture.ndim == 3 else cv2.cvtColor(picture, cv2.COLOR_GRAY2BGR)
+    for index, r in results:
+        if r.status.value in ("error", "stopped") or not all(np.isfinite(r.box)):
+            continue
+        x, y, w, h = (v * scale for v in r.box)
+        x, y = x - scale, y - scale  # 1-based boxes to 0-based pixels
+        colour = colour_bgr(index)
+        state = r.track_state.value if r.track_state else r.status.value
+        thick = 3 if state in ("tracking", "initialized") else 2
+        cv2.rectangle(out, (round(x), round(y)), (round(x + w), round(y + h)), colour, thick)
+        conf = "" if r.confidence is None else f" {r.confidence:.2f}"
+        label = f"{r.session_id[:8]} {state}{conf}"
+        (tw, th), _ = cv2.getTextSize(label, cv2.FONT_HERSHEY_SIMPLEX, 0.5, 1)
+        ty = max(round(y) - 4, th + 4)
+        cv2.rectangle(out, (round(x), ty - th - 4), (round(x) + tw + 4, ty + 2), (0, 0, 0), -1)
+        cv2.putText(out, label, (round(x) + 2, ty - 2), cv2.FONT_HERSHEY_SIMPLEX, 0.5, colour,
+                    1, cv2.LINE_AA)
+    return out
+
+
+class Watch:
+    """One watched stream: its frames and results heard, rendered at a capped rate."""
+
+    def __init__(self, client: TrackingClient, stream_id: str, max_fps: float, max_width: int,
+                 video_key: str | None) -> None:
+        self.stream_id = stream_id
+        self.max_fps, self.max_width = max_fps, max_width
+        self.viewers = 0
+        self.changed = threading.Condition()
+        #: the latest rendered picture (JPEG) and its number, for the MJPEG viewers
+        self.jpeg: bytes | None = None
+        self.rendered = 0
+        self.rendered_seq: int | None = None
+        #: the results drawn on that picture (what a viewer sees)
+        self.drawn: list[Result] = []
+        #: every result heard, numbered, for the results (SSE) viewers
+        self.results: deque[tuple[int, str]] = deque(maxlen=_HISTORY)
+        self.result_count = 0
+        self._frames: OrderedDict[int, TapFrame | np.ndarray] = OrderedDict()
+        self._by_session: dict[str, OrderedDict[int, Result]] = {}
+        self._colours: dict[str, int] = {}
+        self._decoder: StreamDecoder | None = None
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._tap = StreamTap(client, stream_id, self._on_frame, self._on_result, video_key)
+        self._thread = threading.Thread(target=self._render_loop, daemon=True,
+                                        name=f"view-{stream_id}")
+        self._thread.start()
+
+    def _on_frame(self, frame: TapFrame) -> None:
+        if frame.is_video:  # every unit through the decoder; the picture is what is kept
+            codec = "h264" if frame.encoding == "h264" else "hevc"
+            if self._decoder is None or self._decoder.codec != codec:
+                self._decoder = StreamDecoder(codec)
+            out = self._decoder.decode(frame.seq, frame.payload)
+            if out.outcome is not Outcome.FRAME or out.image is None:
+                return
+            item: TapFrame | np.ndarray = out.image
+            seq = out.seq if out.seq is not None else frame.seq
+        else:  # decoded only if rendered
+            item, seq = frame, frame.seq
+        with self._lock:
+            self._frames[seq] = item
+            while len(self._frames) > _RECENT:
+                self._frames.popitem(last=False)
+
+    def _on_result(self, result: Result) -> None:
+        with self._lock:
+            self._colours.setdefault(result.session_id, len(self._colours))
+            recent = self._by_session.setdefault(result.session_id, OrderedDict())
+            recent[result.frame_seq] = result
+            while len(recent) > _RECENT:
+                recent.popitem(last=False)
+        event = json.dumps({
+            "session_id": result.session_id, "frame_seq": result.frame_seq,
+            "status": result.status.value, "box": _finite(result.box),
+            "state": result.track_state.value if result.track_state else None,
+            "confidence": result.confidence, "aberrance": _finite([result.aberrance])[0],
+            "colour": "#" + bytes(colour_bgr(self._colours[result.session_id])[::-1]).hex()})
+        with self.changed:
+            self.result_count += 1
+            self.results.append((self.result_count, event))
+            self.changed.notify_all()
+
+    def _pick(self) -> tuple[int, TapFrame | np.ndarray, list[tuple[int, Result]]] | None:
+        """The frame to render: the newest one every session has answered (so the boxes are
+        that frame's), else, for a stream without answers, the newest one."""
+        with self._lock:
+            if not self._frames:
+                return None
+            answered = [max(r) for r in self._by_session.values() if r]
+            candidates = [s for s in self._frames if not answered or s <= min(answered)]
+            seq = max(candidates) if candidates else next(reversed(self._frames))
+            if seq == self.rendered_seq:
+                return None
+            results = []
+            for sid, recent in self._by_session.items():
+                older = [k for k in recent if k <= seq]
+                if older:
+                    results.append((self._colours[sid], recent[max(older)]))
+            return seq, self._frames[seq], results
+
+    def _render_loop(self) -> None:
+        period = 1.0 / self.max_fps
+        while not self._stop.wait(period):
+            picked = self._pick()
+            if picked is None:
+                continue
+            seq, item, results = picked
+            try:
+                picture = item if isinstance(item, np.ndarray) else _picture(item)
+            except ValueError:
+                log.debug("frame %d of %s not decodable", seq, self.stream_id)
+                continue
+            scale = min(1.0, self.max_width / picture.shape[1])
+            if scale < 1.0:
+                picture = cv2.resize(picture, None, fx=scale, fy=scale,
+                                     interpolation=cv2.INTER_AREA)
+            else:
+                picture = picture.copy()
+            ok, buf = cv2.imencode(".jpg", draw(picture, results, scale),
+                                   [cv2.IMWRITE_JPEG_QUALITY, 85])
+            if not ok:
+                continue
+            with self.changed:
+                self.jpeg, self.rendered_seq = buf.tobytes(), seq
+                self.drawn = [r for _, r in results]
+                self.rendered += 1
+                self.changed.notify_all()
+
+    def close(self) -> None:
+        self._stop.set()
+        self._tap.close()
+        with self.changed:
+            self.changed.notify_all()
+        self._thread.join(timeout=2)
+
+
+def _finite(values: Sequence[float]) -> list[float | None]:
+    return [float(v) if np.isfinite(v) else None for v in values]
+
+
+def _picture(frame: TapFrame) -> np.ndarray:
+    if frame.encoding in ("jpeg", "png"):
+        return decode_compressed(frame.payload)
+    channels = 3 if frame.encoding == "bgr8" else 1
+    assert frame.width is not None and frame.height is not None
+    return np.frombuffer(frame.payload, dtype=np.uint8).reshape(
+        frame.height, frame.width, channels).squeeze()
+
+
+class LiveView:
+    """The page's HTTP server and the streams being watched."""
+
+    def __init__(self, client: TrackingClient, host: str = "127.0.0.1", port: int = 8090, *,
+                 max_fps: float = 5.0, max_width: int = 960,
+                 video_key: str | None = DEFAULT_VIDEO_KEY, max_viewers: int = 16) -> None:
+        if not (0 < max_fps <= 30 and 64 <= max_width <= 4096 and max_viewers >= 1):
+            raise ValueError("max_fps must be in (0, 30], max_width in [64, 4096]")
+        self.client = client
+        self.max_fps, self.max_width, self.video_key = max_fps, max_width, video_key
+        self.max_viewers = max_viewers
+        self.watches: dict[str, Watch] = {}
+        self._lock = threading.Lock()
+        self._viewers = 0
+        self._status: tuple[float, bytes] = (0.0, b"")
+        view = self
+
+        class Handler(BaseHTTPRequestHandler):
+            protocol_version = "HTTP/1.1"
+
+            def log_message(self, fmt: str, *args: Any) -> None:
+                log.debug("%s " + fmt, self.address_string(), *args)
+
+            def do_GET(self) -> None:
+                view.handle(self)
+
+        self.server = ThreadingHTTPServer((host, port), Handler)
+        self.server.daemon_threads = True
+        self.port = self.server.server_address[1]
+        self._thread = threading.Thread(target=self.server.serve_forever, daemon=True,
+                                        name="liveview-http")
+        self._thread.start()
+
+    @property
+    def url(self) -> str:
+        host = self.server.server_address[0]
+        return f"http://{'127.0.0.1' if host in ('0.0.0.0', '') else host}:{self.port}/"
+
+    # ------------------------------------------------------------------ watching
+    def _watch(self, stream_id: str) -> Watch | None:
+        with self._lock:
+            if self._viewers >= self.max_viewers:
+                return None
+            self._viewers += 1
+            watch = self.watches.get(stream_id)
+            if watch is None:
+                watch = self.watches[stream_id] = Watch(
+                    self.client, stream_id, self.max_fps, self.max_width, self.video_key)
+            watch.viewers += 1
+            return watch
+
+    def _unwatch(self, watch: Watch) -> None:
+        with self._lock:
+            self._viewers -= 1
+            watch.viewers -= 1
+            if watch.viewers == 0:
+                del self.watches[watch.stream_id]
+            else:
+                return
+        watch.close()  # the last viewer left: stop listening
+
+    # ------------------------------------------------------------------ HTTP
+    def handle(self, req: BaseHTTPRequestHandler) -> None:
+        path = req.path.split("?", 1)[0]
+        if path in _STATIC:
+            name, kind = _STATIC[path]
+            self._send(req, HTTPStatus.OK, kind,
+                       resources.files("adapters").joinpath("static", name).read_bytes())
+        elif path == "/api/streams":
+            self._send(req, HTTPStatus.OK, "application/json", self._streams())
+        elif (m := _STREAM.match(path)) is not None:
+            watch = self._watch(m.group(1))
+            if watch is None:
+                self._send(req, HTTPStatus.SERVICE_UNAVAILABLE, "text/plain",
+                           b"too many viewers\n")
+                return
+            try:
+                if m.group(2) == "frame.jpg":
+                    self._frame(req, watch)
+                else:
+                    self._events(req, watch)
+            except (BrokenPipeError, ConnectionResetError, TimeoutError):
+                pass  # the viewer left
+            finally:
+                self._unwatch(watch)
+        else:
+            self._send(req, HTTPStatus.NOT_FOUND, "text/plain", b"not found\n")
+
+    def _send(self, req: BaseHTTPRequestHandler, status: HTTPStatus, kind: str,
+              body: bytes) -> None:
+        req.send_response(status)
+        req.send_header("Content-Type", kind)
+        req.send_header("Content-Length", str(len(body)))
+        req.send_header("Cache-Control", "no-store")
+        req.end_headers()
+        req.wfile.write(body)
+
+    def _streams(self) -> bytes:
+        """Streams and sessions from the service's status, cached for a second."""
+        at, body = self._status
+        if time.monotonic() - at < 1.0:
+            return body
+        try:
+            status = self.client.status(timeout=2.0)
+            streams: dict[str, list[dict[str, Any]]] = {}
+            for s in status.sessions:
+                streams.setdefault(s.stream_id, []).append({
+                    "session_id": s.session_id, "preset": s.preset,
+                    "state": str(getattr(s.state, "value", s.state)) if s.state else None,
+                    "frames": s.frames,
+                    "last_seq": s.last_seq})
+            doc: dict[str, Any] = {"streams": [{"stream_id": k, "sessions": v}
+                                               for k, v in sorted(streams.items())]}
+        except Exception as exc:  # the page says so instead of failing
+            doc = {"streams": [], "error": f"no answer from the service: {exc}"}
+        body = json.dumps(doc).encode()
+        self._status = (time.monotonic(), body)
+        return body
+
+    def _frame(self, req: BaseHTTPRequestHandler, watch: Watch) -> None:
+        """The next rendered picture after ``?after=N`` (a long poll: it waits up to 10 s for
+        one), its number and frame in headers. The page asks again once it shows it, so a
+        slow viewer gets fewer pictures instead of a backlog, and every picture shown is
+        complete (a browser's multipart/MJPEG decoding shows a part late)."""
+        query = req.path.partition("?")[2]
+        after = -1
+        for part in query.split("&"):
+            key, _, value = part.partition("=")
+            if key == "after" and value.lstrip("-").isdigit():
+                after = int(value)
+        with watch.changed:
+            watch.changed.wait_for(lambda: watch.rendered > after or watch._stop.is_set(),
+                                   timeout=10)
+            jpeg, rendered, seq = watch.jpeg, watch.rendered, watch.rendered_seq
+        if jpeg is None or rendered <= after:
+            req.send_response(HTTPStatus.NO_CONTENT)
+            req.send_header("Content-Length", "0")
+            req.end_headers()
+            return
+        req.send_response(HTTPStatus.OK)
+        req.send_header("Content-Type", "image/jpeg")
+        req.send_header("Content-Length", str(len(jpeg)))
+        req.send_header("Cache-Control", "no-store")
+        req.send_header("X-Rendered", str(rendered))
+        req.send_header("X-Frame-Seq", str(seq))
+        req.end_headers()
+        req.wfile.write(jpeg)
+
+    def _events(self, req: BaseHTTPRequestHandler, watch: Watch) -> None:
+        """Server-sent events: the stream's results as they arrive (recent history first)."""
+        req.send_response(HTTPStatus.OK)
+        req.send_header("Content-Type", "text/event-stream")
+        req.send_header("Cache-Control", "no-store")
+        req.send_header("Connection", "close")
+        req.end_headers()
+        sent = 0
+        while not watch._stop.is_set():
+            with watch.changed:
+                watch.changed.wait_for(
+                    lambda sent=sent: watch.result_count != sent or watch._stop.is_set(),
+                    timeout=15)
+                fresh = [(n, e) for n, e in watch.results if n > sent]
+            if not fresh:
+                req.wfile.write(b": keep-alive\n\n")  # finds a viewer that left
+            for n, event in fresh:
+                req.wfile.write(b"data: " + event.encode() + b"\n\n")
+                sent = n
+            req.wfile.flush()
+
+    def close(self) -> None:
+        self.server.shutdown()
+        self.server.server_close()
+        for watch in list(self.watches.values()):
+            watch.close()
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="arcf-view", description=__doc__.splitlines()[0])
+    ap.add_argument("--host", default="127.0.0.1",
+                    help="address to serve on (default loopback only)")
+    ap.add_argument("--port", type=int, default=8090)
+    ap.add_argument("--max-fps", type=float, default=5.0,
+                    help="pictures rendered per second and stream, at most (default 5)")
+    ap.add_argument("--max-width", type=int, default=960,
+                    help="pictures scaled down to this width, at most (default 960)")
+    ap.add_argument("--max-viewers", type=int, default=16)
+    ap.add_argument("--video-key", default=DEFAULT_VIDEO_KEY,
+                    help="the service's video_key ('' for none)")
+    ap.add_argument("-e", "--connect", action="append", default=None,
+                    help="Zenoh endpoint of the service (default tcp/127.0.0.1:7447)")
+    ap.add_argument("--prefix", default="arcf/v1")
+    args = ap.parse_args(argv)
+    stop = prepare()
+    with TrackingClient(connect=args.connect or ["tcp/127.0.0.1:7447"],
+                        prefix=args.prefix) as client:
+        try:
+            view = LiveView(client, args.host, args.port, max_fps=args.max_fps,
+                            max_width=args.max_width, video_key=args.video_key or None,
+                            max_viewers=args.max_viewers)
+        except (OSError, ValueError) as exc:
+            raise SystemExit(f"arcf-view: {exc}") from exc
+        log.info("live view on %s", view.url)
+        stop.wait()
+        view.close()
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

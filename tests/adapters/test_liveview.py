@@ -1,0 +1,150 @@
+"""The live view in a real headless browser (Debian's Chromium, driven by Playwright): the page
+loads from the package alone (no request leaves loopback), lists the stream, shows its video
+with the session's box drawn in the session's colour where the service put it, and updates."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import threading
+import time
+import urllib.request
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+pytest.importorskip("zenoh")
+pytest.importorskip("playwright.sync_api")
+
+from playwright.sync_api import sync_playwright
+
+from adapters.liveview import LiveView, colour_bgr
+from arcf.eval import load_dataset
+from loadtools.procs import ServiceProcess
+from service.client import TrackingClient
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+pytestmark = [pytest.mark.integration,
+              pytest.mark.skipif(CHROMIUM is None, reason="needs Chromium (apt: chromium)")]
+#: where the README's picture is written when ARCF_SCREENSHOT=1
+PICTURE = Path(__file__).resolve().parents[2] / "docs" / "img" / "liveview.png"
+
+
+@pytest.fixture(scope="module")
+def frames():
+    try:
+        (seq,) = load_dataset("uav123_10fps", sequences=["wakeboard7"])
+    except (FileNotFoundError, KeyError):
+        pytest.skip("needs ../shared/data")
+    return seq, [p.read_bytes() for p in seq.frames[:60]]
+
+
+def test_the_page_shows_the_stream_with_its_boxes_and_updates(frames, tmp_path: Path) -> None:
+    seq, data = frames
+    stop = threading.Event()
+    with ServiceProcess(workers=1) as service, \
+            TrackingClient(connect=[service.endpoint], frame_congestion="block") as client:
+        ack = client.start("drone-7", seq.init_box, preset="bacf", frame_seq=0)
+        results = client.results("drone-7", ack.session_id)
+
+        def publish() -> None:  # 10 fps, bounded: the clip once, then stop
+            for i, d in enumerate(data):
+                if stop.wait(0.1):
+                    return
+                client.publish_frame("drone-7", data=d, seq=i)
+
+        sender = threading.Thread(target=publish, daemon=True)
+        sender.start()
+        view = LiveView(client, "127.0.0.1", 0, max_fps=5, max_width=960)
+        outside: list[str] = []
+        try:
+            with sync_playwright() as p:
+                browser = p.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
+                page = browser.new_page(viewport={"width": 1300, "height": 1000})
+                page.on("request", lambda r: None if r.url.startswith(
+                    (view.url, "blob:" + view.url.rstrip("/"))) else outside.append(r.url))
+                page.goto(view.url + "?stream=drone-7")
+                page.wait_for_selector("#streams a.current", timeout=15_000)
+                assert page.inner_text("#streams a.current") == "drone-7"
+                page.wait_for_function(
+                    "document.getElementById('video').naturalWidth > 0 && "
+                    "window.arcfView.points() > 5", timeout=30_000)
+                first = int(page.inner_text("#frame-seq"))
+                page.wait_for_function(
+                    f"Number(document.getElementById('frame-seq').textContent) > {first + 5}",
+                    timeout=30_000)  # it updates: later frames, more points
+                assert page.inner_text("#sessions tbody td:nth-child(2)") == "bacf"
+                # the last frame, its box drawn: stop the stream, let the view catch up
+                sender.join(timeout=30)
+                last = None
+                for r in results.iter(timeout=2.0):
+                    last = r
+                assert last is not None and last.frame_seq == len(data) - 1
+                page.wait_for_function(
+                    f"document.getElementById('frame-seq').textContent == '{len(data) - 1}'",
+                    timeout=15_000)
+                time.sleep(1.0)  # two renders at 5 fps: the final frame with its box
+                watch = view.watches["drone-7"]
+                assert watch.rendered_seq == len(data) - 1
+                (drawn,) = watch.drawn
+                assert drawn.frame_seq == last.frame_seq and drawn.box == last.box
+                page.wait_for_function(  # the page shows that picture
+                    f"document.getElementById('video').dataset.frameSeq == '{len(data) - 1}'",
+                    timeout=15_000)
+                img = page.locator("#video")
+                shot = tmp_path / "video.png"
+                img.screenshot(path=str(shot))
+                if os.environ.get("ARCF_SCREENSHOT"):
+                    page.screenshot(path=str(PICTURE), full_page=True)
+                natural = page.evaluate("document.getElementById('video').naturalWidth")
+                browser.close()
+        finally:
+            stop.set()
+            view.close()
+    pixels = cv2.imread(str(shot)).astype(float)
+    assert natural == 960 and pixels.shape[1] == 960  # scaled to max_width, shown as rendered
+    x, y, w, h = (v * 960 / 1280 for v in last.box)
+    x, y = x - 960 / 1280, y - 960 / 1280
+    want = np.array(colour_bgr(0), dtype=float)  # the first session's colour
+
+    def near(px: float, py: float) -> float:
+        """How far the closest pixel within 2 px is from the session's colour."""
+        c, r = round(px), round(py)
+        patch = pixels[max(r - 2, 0):r + 3, max(c - 2, 0):c + 3].reshape(-1, 3)
+        return float(np.abs(patch - want).max(axis=1).min())
+
+    # along the box's four edges: the session's colour (JPEG blurs it a little)
+    edges = [near(x + f * w, y) for f in np.linspace(0.1, 0.9, 5)]
+    edges += [near(x + f * w, y + h) for f in np.linspace(0.1, 0.9, 5)]
+    edges += [near(x, y + f * h) for f in np.linspace(0.1, 0.9, 5)]
+    edges += [near(x + w, y + f * h) for f in np.linspace(0.1, 0.9, 5)]
+    assert sum(d < 80 for d in edges) >= 18, edges
+    # and the scene's own colours away from it (the box is drawn, not the frame green)
+    far = [near(x + w / 2, y + h + 40), near(x - 40, y + h / 2)]
+    assert min(far) >= 80, far
+    assert outside == []  # nothing from a CDN or anywhere else: it works offline
+    # once nobody watches, nothing is listened to
+    deadline = time.monotonic() + 5
+    while view.watches and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert view.watches == {}
+
+
+def test_unknown_paths_and_too_many_viewers_are_refused() -> None:
+    class Quiet:
+        def status(self, timeout: float = 0) -> None:
+            raise TimeoutError("no service")
+
+    view = LiveView(Quiet(), "127.0.0.1", 0, max_viewers=1)  # type: ignore[arg-type]
+    try:
+        with pytest.raises(urllib.error.HTTPError) as e:
+            urllib.request.urlopen(view.url + "etc/passwd", timeout=5)
+        assert e.value.code == 404
+        doc = urllib.request.urlopen(view.url + "api/streams", timeout=5).read().decode()
+        assert "no answer from the service" in doc
+        page = urllib.request.urlopen(view.url, timeout=5).read().decode()
+        assert "<script src=\"/view.js\">" in page and "http" not in page.split("<body>")[1]
+    finally:
+        view.close()
