@@ -40,9 +40,9 @@ import numpy as np
 from schemas import Result
 from service.client import TrackingClient
 from service.decoding import decode_compressed
-from service.video import Outcome, StreamDecoder
+from service.video import CODECS, Outcome, StreamDecoder
 
-from ._command import prepare
+from ._command import add_service_arguments, prepare, service_client
 from .record import PALETTE
 from .tap import DEFAULT_VIDEO_KEY, StreamTap, TapFrame
 
@@ -116,7 +116,7 @@ class Watch:
 
     def _on_frame(self, frame: TapFrame) -> None:
         if frame.is_video:  # every unit through the decoder; the picture is what is kept
-            codec = "h264" if frame.encoding == "h264" else "hevc"
+            codec = CODECS[frame.encoding]
             if self._decoder is None or self._decoder.codec != codec:
                 self._decoder = StreamDecoder(codec)
             out = self._decoder.decode(frame.seq, frame.payload)
@@ -404,13 +404,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--max-viewers", type=int, default=16)
     ap.add_argument("--video-key", default=DEFAULT_VIDEO_KEY,
                     help="the service's video_key ('' for none)")
-    ap.add_argument("-e", "--connect", action="append", default=None,
-                    help="Zenoh endpoint of the service (default tcp/127.0.0.1:7447)")
-    ap.add_argument("--prefix", default="arcf/v1")
+    add_service_arguments(ap)
     args = ap.parse_args(argv)
     stop = prepare()
-    with TrackingClient(connect=args.connect or ["tcp/127.0.0.1:7447"],
-                        prefix=args.prefix) as client:
+    with service_client(args) as client:
         try:
             view = LiveView(client, args.host, args.port, max_fps=args.max_fps,
                             max_width=args.max_width, video_key=args.video_key or None,

@@ -49,7 +49,7 @@ from schemas import ErrorCode, Frame, Result, ResultStatus, TrackState
 from service.client import ServiceError, TrackingClient
 from service.decoding import decode_compressed
 
-from ._command import prepare
+from ._command import add_service_arguments, prepare, service_client
 
 log = logging.getLogger("arcf.mavlink")
 mav = mavutil.mavlink
@@ -604,8 +604,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                     "tcp:HOST:PORT, or a serial device,baud")
     ap.add_argument("--camera", action="append", required=True, metavar="STREAM[=COMPID]",
                     help="a stream shown as a camera; component ids default to 100, 101, ...")
-    ap.add_argument("--connect", default="tcp/127.0.0.1:7447",
-                    help="the service's Zenoh endpoint (default: %(default)s)")
+    add_service_arguments(ap)
     ap.add_argument("--system-id", type=int, default=1,
                     help="MAVLink system id: the vehicle's (default: %(default)s)")
     ap.add_argument("--preset", default="arcf-hc")
@@ -624,7 +623,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         overrides[name] = _value(value)
     cameras = [_camera(c, i) for i, c in enumerate(args.camera)]
     stop = prepare()
-    with TrackingClient(connect=[args.connect]) as client:
+    with service_client(args) as client:
         try:
             check_preset(client, args.preset, overrides)
         except (ValueError, TimeoutError, ServiceError) as exc:

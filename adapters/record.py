@@ -44,9 +44,9 @@ from schemas import Result
 from schemas.export import message_schema
 from service import foxglove
 from service.client import TrackingClient
-from service.video import KEYFRAME_TYPES, nal_units
+from service.video import CODECS, KEYFRAME_TYPES, nal_units
 
-from ._command import prepare
+from ._command import add_service_arguments, prepare, service_client
 from .tap import DEFAULT_VIDEO_KEY, StreamTap, TapFrame
 
 log = logging.getLogger("arcf.adapters.record")
@@ -55,11 +55,10 @@ log = logging.getLogger("arcf.adapters.record")
 PALETTE = ((0.0, 1.0, 0.0, 1.0), (1.0, 0.0, 1.0, 1.0), (0.0, 1.0, 1.0, 1.0),
            (1.0, 0.6, 0.0, 1.0), (1.0, 1.0, 0.0, 1.0), (0.3, 0.5, 1.0, 1.0))
 RESULTS_SCHEMA = "arcf.result"
-_CODECS = {"h264": "h264", "h265": "hevc"}
 
 
 def is_keyframe(unit: bytes, encoding: str) -> bool:
-    codec = _CODECS[encoding]
+    codec = CODECS[encoding]
     return any(kind in KEYFRAME_TYPES[codec] for kind, _ in nal_units(unit, codec))
 
 
@@ -242,15 +241,12 @@ def main(argv: Sequence[str] | None = None) -> int:
                     help="newest files kept; older ones are deleted (default 8)")
     ap.add_argument("--video-key", default=DEFAULT_VIDEO_KEY,
                     help="the service's video_key ('' for none)")
-    ap.add_argument("-e", "--connect", action="append", default=None,
-                    help="Zenoh endpoint of the service (default tcp/127.0.0.1:7447)")
-    ap.add_argument("--prefix", default="arcf/v1")
+    add_service_arguments(ap)
     args = ap.parse_args(argv)
     if not re.fullmatch(r"[A-Za-z0-9_.-]{1,64}", args.stream):
         ap.error(f"not a stream id: {args.stream!r}")
     stop = prepare()
-    with TrackingClient(connect=args.connect or ["tcp/127.0.0.1:7447"],
-                        prefix=args.prefix) as client, \
+    with service_client(args) as client, \
             Recorder(client, args.stream, args.out, session_id=args.session,
                      segment_bytes=int(args.segment_mb * (1 << 20)), keep=args.keep,
                      video_key=args.video_key or None) as recorder:

@@ -50,7 +50,7 @@ from schemas import Result, ResultStatus
 from service.client import ServiceError, TrackingClient
 
 from . import ros2_types as rt
-from ._command import prepare
+from ._command import add_service_arguments, prepare, service_client
 
 log = logging.getLogger("arcf.ros2")
 
@@ -403,8 +403,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         description="A ROS 2 node (rmw_zenoh) between ROS 2 image topics and arcf-service.")
     ap.add_argument("--image", action="append", required=True, metavar="TOPIC=STREAM",
                     help="a sensor_msgs/msg/CompressedImage topic and the stream it feeds")
-    ap.add_argument("--connect", default="tcp/127.0.0.1:7447",
-                    help="the service's Zenoh endpoint (default: %(default)s)")
+    add_service_arguments(ap)
     ap.add_argument("--ros-connect", default=None,
                     help="rmw_zenoh's router, when not the same Zenoh network (e.g. "
                     "tcp/127.0.0.1:7448)")
@@ -423,7 +422,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     stop = prepare()
     from service.transport import open_session
 
-    with TrackingClient(connect=[args.connect]) as client:
+    with service_client(args) as client:
         ros = open_session("client", connect=[args.ros_connect]) if args.ros_connect else None
         bridge = Ros2Bridge(client, images, domain_id=args.domain_id, node_name=args.node_name,
                             ros_session=ros, preset=args.preset, bridge_keys=args.bridge_keys)

@@ -1,21 +1,17 @@
 """ROS 2 message types for the ROS 2 adapter: definitions, CDR and type hashes from ``rosbags``.
 
 ``rosbags`` (a maintained pure-Python ROS 2 toolkit on PyPI) carries the standard messages of
-each ROS 2 distribution, serialises and parses CDR, and computes the RIHS01 type hashes that
-``rmw_zenoh`` puts in every key. ``vision_msgs`` is not among its standard messages, so its
-definitions (vision_msgs 4.x, as shipped with Humble, Jazzy and later) are registered here
-from their ``.msg`` text.
+each ROS 2 distribution (Jazzy's are used, :mod:`service.cdr`), serialises and parses CDR, and
+computes the RIHS01 type hashes that ``rmw_zenoh`` puts in every key. ``vision_msgs`` is not
+among its standard messages, so its definitions (vision_msgs 4.x, as shipped with Humble,
+Jazzy and later) are registered here from their ``.msg`` text.
 """
 
 from __future__ import annotations
 
-from functools import lru_cache
 from typing import Any
 
-from rosbags.typesys import Stores, get_types_from_msg, get_typestore
-
-#: The ROS 2 distribution whose definitions (and so type hashes) are used.
-DISTRIBUTION = Stores.ROS2_JAZZY
+from service.cdr import MessageTypes
 
 COMPRESSED_IMAGE = "sensor_msgs/msg/CompressedImage"
 DETECTION_2D_ARRAY = "vision_msgs/msg/Detection2DArray"
@@ -36,15 +32,15 @@ VISION_MSGS = {
 }
 
 
-@lru_cache(maxsize=1)
+TYPES = MessageTypes(VISION_MSGS)
+serialize = TYPES.serialize
+deserialize = TYPES.deserialize
+message = TYPES.message
+
+
 def typestore() -> Any:
     """The distribution's types plus vision_msgs (built once per process)."""
-    store = get_typestore(DISTRIBUTION)
-    types: dict[str, Any] = {}
-    for name, text in VISION_MSGS.items():
-        types.update(get_types_from_msg(text, name))
-    store.register(types)
-    return store
+    return TYPES.store
 
 
 def dds_type_name(ros_type: str) -> str:
@@ -57,17 +53,3 @@ def dds_type_name(ros_type: str) -> str:
 def type_hash(ros_type: str) -> str:
     """The type's RIHS01 hash (``RIHS01_<64 hex>``)."""
     return str(typestore().hash_rihs01(ros_type))
-
-
-def serialize(message: Any, ros_type: str) -> bytes:
-    """CDR (little-endian, with its 4-byte encapsulation header), as ROS 2 sends it."""
-    return bytes(typestore().serialize_cdr(message, ros_type))
-
-
-def deserialize(data: bytes | memoryview, ros_type: str) -> Any:
-    return typestore().deserialize_cdr(bytes(data), ros_type)
-
-
-def message(ros_type: str, **fields: Any) -> Any:
-    """An instance of a registered type (``message("std_msgs/msg/Header", ...)``)."""
-    return typestore().types[ros_type](**fields)

@@ -10,8 +10,11 @@ from collections.abc import Iterable
 import av
 import numpy as np
 
-#: codec name on the wire (frame ``encoding``, CompressedVideo ``format``) -> FFmpeg's names
-CODECS = {"h264": ("libx264", "h264"), "h265": ("libx265", "hevc")}
+from service.video import CODECS
+
+#: codec name on the wire (frame ``encoding``, CompressedVideo ``format``) -> FFmpeg's encoder
+#: (the decoder is the service's, ``service.video.CODECS``)
+ENCODERS = {"h264": "libx264", "h265": "libx265"}
 
 
 def encode_video(images: Iterable[np.ndarray], codec: str = "h264", fps: int = 30,
@@ -19,7 +22,7 @@ def encode_video(images: Iterable[np.ndarray], codec: str = "h264", fps: int = 3
     """BGR ``(H, W, 3)`` uint8 images as Annex B access units, one per image: a keyframe
     every ``gop`` images, no B-frames, no scene-cut keyframes (a live camera's low-latency
     stream, whose keyframes come at a fixed interval)."""
-    encoder_name = CODECS[codec][0]
+    encoder_name = ENCODERS[codec]
     enc: av.VideoCodecContext | None = None
     units: list[bytes] = []
     for image in images:
@@ -43,5 +46,5 @@ def encode_video(images: Iterable[np.ndarray], codec: str = "h264", fps: int = 3
 
 def decode_video(units: Iterable[bytes], codec: str = "h264") -> list[np.ndarray]:
     """Every picture of a stream of access units, by one plain FFmpeg decoder, as BGR."""
-    dec = av.CodecContext.create(CODECS[codec][1], "r")
+    dec = av.CodecContext.create(CODECS[codec], "r")
     return [f.to_ndarray(format="bgr24") for u in units for f in dec.decode(av.Packet(u))]

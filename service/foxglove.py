@@ -7,17 +7,16 @@ service ingests next to its own frame messages; and Foxglove opens MCAP recordin
 channels use its schemas (compressed image or video, image annotations), which
 ``adapters.record`` writes. Both need the same definitions: they are declared once, here, in
 the ``foxglove_msgs`` ROS 2 package's text (the form Foxglove reads as ``ros2msg`` schemas),
-and ``rosbags`` (a maintained pure-Python ROS 2 toolkit) serialises and parses their CDR.
+and ``rosbags`` serialises and parses their CDR (:mod:`service.cdr`).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
-from typing import Any
 
 import numpy as np
-from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+from .cdr import MessageTypes
 
 COMPRESSED_VIDEO = "foxglove_msgs/msg/CompressedVideo"
 COMPRESSED_IMAGE = "foxglove_msgs/msg/CompressedImage"
@@ -48,64 +47,14 @@ DEFINITIONS = {
         "foxglove_msgs/CircleAnnotation[] circles\nfoxglove_msgs/PointsAnnotation[] points\n"
         "foxglove_msgs/TextAnnotation[] texts\n",
 }
-#: what ``format`` says in a CompressedVideo, to the decoder's codec name
-VIDEO_FORMATS = {"h264": "h264", "h265": "hevc"}
-_TIME = "builtin_interfaces/msg/Time"
 
 
-@lru_cache(maxsize=1)
-def typestore() -> Any:
-    """ROS 2 Jazzy's standard types plus foxglove_msgs (built once per process)."""
-    store = get_typestore(Stores.ROS2_JAZZY)
-    types: dict[str, Any] = {}
-    for name, text in DEFINITIONS.items():
-        types.update(get_types_from_msg(text, name))
-    store.register(types)
-    return store
-
-
-def definition(ros_type: str) -> str:
-    """The type's full ``ros2msg`` text, its dependencies appended after ``MSG:`` separators
-    (the schema data of an MCAP channel that Foxglove decodes)."""
-    order: list[str] = []
-
-    def visit(name: str) -> None:
-        for line in DEFINITIONS.get(name, "").splitlines():
-            field_type = line.split()[0].rstrip("[]")
-            if "/" in field_type and "=" not in line:
-                package, short = field_type.split("/")
-                dep = f"{package}/msg/{short}"
-                if dep not in order:
-                    order.append(dep)
-                    visit(dep)
-
-    visit(ros_type)
-    parts = [DEFINITIONS[ros_type]]
-    for dep in order:
-        text = DEFINITIONS.get(dep, "int32 sec\nuint32 nanosec\n" if dep == _TIME else None)
-        if text is None:
-            raise KeyError(f"no definition of {dep}")
-        parts.append("=" * 80 + f"\nMSG: {dep.replace('/msg/', '/')}\n" + text)
-    return "\n".join(parts)
-
-
-def serialize(message: Any, ros_type: str) -> bytes:
-    """CDR (little-endian, with its 4-byte encapsulation header), as ROS 2 and Zenoh carry it."""
-    return bytes(typestore().serialize_cdr(message, ros_type))
-
-
-def deserialize(data: bytes | memoryview, ros_type: str) -> Any:
-    return typestore().deserialize_cdr(bytes(data), ros_type)
-
-
-def message(ros_type: str, **fields: Any) -> Any:
-    """An instance of a registered type (``message(COMPRESSED_VIDEO, ...)``)."""
-    return typestore().types[ros_type](**fields)
-
-
-def time(ns: int) -> Any:
-    """A ``builtin_interfaces/Time`` of nanoseconds since the Unix epoch."""
-    return message(_TIME, sec=int(ns // 1_000_000_000), nanosec=int(ns % 1_000_000_000))
+TYPES = MessageTypes(DEFINITIONS)
+serialize = TYPES.serialize
+deserialize = TYPES.deserialize
+message = TYPES.message
+time = TYPES.time
+definition = TYPES.definition
 
 
 @dataclass(frozen=True)

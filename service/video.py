@@ -34,6 +34,9 @@ import numpy as np
 #: (H.264 SPS 7, PPS 8; H.265 VPS 32, SPS 33, PPS 34)
 KEYFRAME_TYPES = {"h264": frozenset({5}), "hevc": frozenset(range(16, 22))}
 PARAMETER_TYPES = {"h264": frozenset({7, 8}), "hevc": frozenset({32, 33, 34})}
+#: a video encoding's name on the wire (frame ``encoding``, CompressedVideo ``format``) ->
+#: the FFmpeg decoder :class:`StreamDecoder` runs for it
+CODECS = {"h264": "h264", "h265": "hevc"}
 #: FFmpeg's log level of a decoding error (AV_LOG_ERROR)
 _FFMPEG_ERROR = 16
 #: FFmpeg's report that it papered over damage (AV_LOG_INFO, "concealing N DC, N AC, N MV

@@ -45,9 +45,9 @@ from .commands import (
     StopSession,
 )
 from .decoding import decode_image
-from .foxglove import VIDEO_FORMATS, parse_compressed_video
+from .foxglove import parse_compressed_video
 from .intake import Numbering, TokenBucket, Verdict
-from .video import Outcome, StreamDecoder
+from .video import CODECS, Outcome, StreamDecoder
 
 log = logging.getLogger("arcf.service.worker")
 
@@ -570,9 +570,8 @@ class Worker:
             return None
         if frame.encoding.is_video:
             stream.inbox.limit = stream.inbox.video_queue
-            codec = "h264" if frame.encoding == "h264" else "hevc"
             return self._decode_unit(stream, frame.seq, frame.capture_ts_ns, received_ns,
-                                     codec, frame.payload)
+                                     CODECS[frame.encoding.value], frame.payload)
         stream.decoder, stream.inbox.limit = None, stream.inbox.image_queue
         stream.unit_times.clear()
         t0 = time.perf_counter()
@@ -594,7 +593,7 @@ class Worker:
         except ValueError as exc:
             self._error(stream, ErrorCode.DECODE_ERROR, str(exc), seq)
             return None
-        codec = VIDEO_FORMATS.get(unit.format)
+        codec = CODECS.get(unit.format)
         if codec is None:
             self._error(stream, ErrorCode.DECODE_ERROR, f"CompressedVideo format "
                         f"{unit.format[:40]!r} is not h264 or h265", seq)

@@ -36,3 +36,16 @@ def hidden_target_scene() -> Scene:
         return frame, (x + 1, y + 1, 36, 36)
 
     return scene
+
+
+@pytest.fixture(scope="session")
+def wakeboard7():  # type: ignore[no-untyped-def]
+    """UAV123@10fps wakeboard7 (1280x720 JPEG frames, a small moving target), the service
+    and adapter tests' real stream; skipped where ../shared/data is absent."""
+    from arcf.eval import load_dataset
+
+    try:
+        (seq,) = load_dataset("uav123_10fps", sequences=["wakeboard7"])
+    except (FileNotFoundError, KeyError):
+        pytest.skip("needs ../shared/data")
+    return seq

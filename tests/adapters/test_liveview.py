@@ -21,7 +21,6 @@ pytest.importorskip("playwright.sync_api")
 from playwright.sync_api import sync_playwright
 
 from adapters.liveview import LiveView, colour_bgr
-from arcf.eval import load_dataset
 from loadtools.procs import ServiceProcess
 from service.client import TrackingClient
 
@@ -33,12 +32,8 @@ PICTURE = Path(__file__).resolve().parents[2] / "docs" / "img" / "liveview.png"
 
 
 @pytest.fixture(scope="module")
-def frames():
-    try:
-        (seq,) = load_dataset("uav123_10fps", sequences=["wakeboard7"])
-    except (FileNotFoundError, KeyError):
-        pytest.skip("needs ../shared/data")
-    return seq, [p.read_bytes() for p in seq.frames[:60]]
+def frames(wakeboard7):
+    return wakeboard7, [p.read_bytes() for p in wakeboard7.frames[:60]]
 
 
 def test_the_page_shows_the_stream_with_its_boxes_and_updates(frames, tmp_path: Path) -> None:

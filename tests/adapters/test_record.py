@@ -19,7 +19,6 @@ from mcap.reader import make_reader
 
 import arcf
 from adapters.record import Recorder
-from arcf.eval import load_dataset
 from arcf.eval.metrics import score_sequence
 from arcf.eval.recording import score_recording
 from loadtools.procs import ServiceProcess
@@ -33,12 +32,8 @@ N = 20
 
 
 @pytest.fixture(scope="module")
-def clip():
-    try:
-        (seq,) = load_dataset("uav123_10fps", sequences=["wakeboard7"])
-    except (FileNotFoundError, KeyError):
-        pytest.skip("needs ../shared/data")
-    return seq, [p.read_bytes() for p in seq.frames[:N]]
+def clip(wakeboard7):
+    return wakeboard7, [p.read_bytes() for p in wakeboard7.frames[:N]]
 
 
 @pytest.fixture(scope="module")

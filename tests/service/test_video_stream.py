@@ -15,7 +15,6 @@ import pytest
 pytest.importorskip("zenoh")
 
 import arcf
-from arcf.eval import load_dataset
 from loadtools.procs import ServiceProcess
 from loadtools.video import decode_video, encode_video
 from schemas import ErrorMessage, KeySpace, decode
@@ -30,11 +29,8 @@ PRESET = "bacf"
 
 
 @pytest.fixture(scope="module")
-def clip():
-    try:
-        (seq,) = load_dataset("uav123_10fps", sequences=["wakeboard7"])
-    except (FileNotFoundError, KeyError):
-        pytest.skip("needs ../shared/data")
+def clip(wakeboard7):
+    seq = wakeboard7
     images = [decode_compressed(p.read_bytes()) for p in seq.frames[:N]]
     units = encode_video(images, "h264", fps=30, gop=GOP)
     assert len(units) == N
