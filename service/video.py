@@ -141,13 +141,17 @@ class StreamDecoder:
             data = b"".join(missing) + data
             self._ctx = av.CodecContext.create(self.codec, "r")
             self._ctx.thread_type = "NONE"
+            # FFmpeg refuses a larger picture before allocating it: a parameter set declaring
+            # a huge size (a decoding bomb) costs nothing
+            self._ctx.options = {"max_pixels": str(self.max_pixels)}
         try:
             with av.logging.Capture(local=False) as logs:
                 packet = av.Packet(data)
                 packet.pts = seq  # comes back on the picture: which unit it is
                 frames = self._ctx.decode(packet)
         except (av.FFmpegError, ValueError) as exc:
-            return self._resync("corrupt", f"damaged access unit: {exc}")
+            return self._resync("corrupt", f"damaged access unit, or pictures above "
+                                f"{self.max_pixels} pixels: {exc}")
         errors = [text.strip() for level, _, text in logs
                   if level <= _FFMPEG_ERROR or text.startswith(_CONCEALED)]
         if errors:

@@ -112,3 +112,11 @@ def test_h265() -> None:
         np.testing.assert_array_equal(g.image, want)
     with pytest.raises(ValueError):
         StreamDecoder("vp9")
+
+
+def test_pictures_above_max_pixels_are_refused_before_decoding(h264: list[bytes]) -> None:
+    dec = StreamDecoder("h264", max_pixels=640 * 360 - 1)  # one pixel short of the stream's
+    out = [dec.decode(i, u) for i, u in enumerate(h264[:GOP + 1])]
+    assert out[0].outcome is Outcome.RESYNC and f"{640 * 360 - 1} pixels" in (out[0].reason or "")
+    assert all(o.outcome is not Outcome.FRAME for o in out)
+    assert StreamDecoder("h264", max_pixels=640 * 360).decode(0, h264[0]).outcome is Outcome.FRAME
