@@ -2,6 +2,7 @@
 
     arcf-demo                                  # UAV123@10fps wakeboard7 at 10 fps, arcf-hc
     arcf-demo --dataset dtb70 --sequence Animal3 --preset arcf-h --fps 30 --limit 100
+    arcf-demo --encoding h264                  # the same frames as a drone's H.264 video
 
 The service runs as a child process (its own embedded Zenoh router on loopback), exactly as
 ``arcf-service`` would; this process is a ground station: it publishes the JPEG frames, starts a
@@ -33,10 +34,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--limit", type=int, default=0, help="replay only the first N frames")
     ap.add_argument("--port", type=int, default=7447)
     ap.add_argument("--workers", type=int, default=0, help="service workers (default: cores)")
+    ap.add_argument("--encoding", choices=("jpeg", "h264", "h265"), default="jpeg",
+                    help="send the frames as JPEG files or as H.264 / H.265 video")
     args = ap.parse_args(argv)
 
     (seq,) = load_dataset(args.dataset, sequences=[args.sequence])
     clip = Clip.of(seq, limit=args.limit)
+    if args.encoding != "jpeg":
+        clip = clip.as_video(args.encoding)
     gt = np.asarray(seq.groundtruth, dtype=float)
     errors: list[float] = []
 

@@ -12,7 +12,7 @@ import math
 import threading
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -33,6 +33,9 @@ class Clip:
     #: ground truth of the sequence's frames, in publication order (frame i: row i mod len);
     #: None for a forth-and-back clip, which is not scored
     groundtruth: np.ndarray | None = None
+    #: the frames' wire encoding: ``jpeg`` (the datasets' files), or ``h264`` / ``h265``
+    #: access units (:meth:`as_video`)
+    encoding: str = "jpeg"
 
     @classmethod
     def of(cls, sequence: Any, *, limit: int = 0, palindrome: bool = False) -> Clip:
@@ -48,6 +51,16 @@ class Clip:
 
     def __len__(self) -> int:
         return len(self.frames)
+
+    def as_video(self, codec: str = "h264", fps: int = 30) -> Clip:
+        """The same clip as a drone camera's video: one access unit per frame, a keyframe
+        every 30 (the first included, so a cycled clip restarts on a keyframe)."""
+        from service.decoding import decode_compressed
+
+        from .video import encode_video
+
+        units = encode_video((decode_compressed(f) for f in self.frames), codec, fps=fps)
+        return replace(self, frames=tuple(units), encoding=codec)
 
 
 @dataclass(frozen=True)
@@ -246,7 +259,8 @@ class Fleet:
                          or st.stop.is_set(), pacing.wait_s)
             if st.stop.is_set():
                 return
-            self.client.publish_frame(st.name, data=st.clip.frames[i % n_frames], seq=i)
+            self.client.publish_frame(st.name, data=st.clip.frames[i % n_frames],
+                                      encoding=st.clip.encoding, seq=i)
             rec.on_sent(i)
             i += 1
 

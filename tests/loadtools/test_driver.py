@@ -73,7 +73,8 @@ class FakeService:
             if sid in sids:
                 sids.remove(sid)
 
-    def publish_frame(self, stream: str, *, data: bytes, seq: int) -> None:
+    def publish_frame(self, stream: str, *, data: bytes, seq: int,
+                      encoding: str = "jpeg") -> None:
         self._call("publish", (stream, seq, time.monotonic()))
         if seq in self.lose:
             return
@@ -363,3 +364,17 @@ def test_run_load_reports_what_the_ledger_saw(tmp_path) -> None:
     assert report["metrics_agree"]  # no metrics URL: nothing to disagree with
     stops = [c[1] for c in service.calls if c[0] == "stop"]
     assert len(stops) == 6  # every session stopped at the end
+
+
+def test_a_clip_as_video_is_one_access_unit_per_frame_starting_on_a_keyframe(
+        wakeboard7) -> None:
+    from loadtools.video import decode_video
+    from service.video import KEYFRAME_TYPES, nal_units
+
+    clip = Clip.of(wakeboard7, limit=12)
+    video = clip.as_video("h264")
+    assert video.encoding == "h264" and len(video) == len(clip) == 12
+    assert video.box == clip.box and video.groundtruth is clip.groundtruth
+    assert any(k in KEYFRAME_TYPES["h264"] for k, _ in nal_units(video.frames[0], "h264"))
+    pictures = decode_video(video.frames)
+    assert len(pictures) == 12 and pictures[0].shape == (720, 1280, 3)

@@ -38,6 +38,15 @@ def clip(wakeboard7):
 
 
 @pytest.fixture(scope="module")
+def hevc_clip(wakeboard7):
+    """The first 12 frames as H.265 (libx265), keyframes every 5."""
+    images = [decode_compressed(p.read_bytes()) for p in wakeboard7.frames[:12]]
+    units = encode_video(images, "h265", fps=30, gop=5)
+    assert len(units) == 12
+    return wakeboard7, units, decode_video(units, "h265")
+
+
+@pytest.fixture(scope="module")
 def service():
     svc = ServiceProcess(workers=1)
     yield svc
@@ -80,6 +89,31 @@ def test_h264_frames_give_the_librarys_boxes_on_the_decoded_pictures(service, cl
                                atol=1e-9)
     assert [got[i].track_state for i in range(N)] == [r.state.value for r in want]
     assert all(got[i].decode_s > 0 and got[i].dropped == 0 for i in range(N))
+
+
+@pytest.mark.parametrize("convention", ["frame", "compressed_video"])
+def test_h265_in_both_conventions_gives_the_librarys_boxes(service, hevc_clip,
+                                                           convention: str) -> None:
+    seq, units, pictures = hevc_clip
+    stream = f"hevc-{convention.replace('_', '-')}"
+    with TrackingClient(connect=[service.endpoint], frame_congestion="block") as client:
+        import zenoh
+
+        pub = client.session.declare_publisher(f"video/{stream}/stream",
+                                               congestion_control=zenoh.CongestionControl.BLOCK)
+
+        def send(i: int, unit: bytes) -> None:
+            if convention == "frame":
+                client.publish_frame(stream, data=unit, encoding="h265", seq=i)
+            else:
+                pub.put(compressed_video(unit, "h265", 1 + i))
+
+        got = lockstep(client, stream, dict(enumerate(units)), send, seq.init_box)
+    want = library(pictures, seq.init_box)
+    assert [got[i].status for i in range(len(units))] == (
+        ["initialized"] + ["tracking"] * (len(units) - 1))
+    np.testing.assert_allclose([got[i].box for i in range(len(units))],
+                               [r.box for r in want], atol=1e-9)
 
 
 def test_compressed_video_on_the_camera_managers_key_gives_the_same_boxes(service,
