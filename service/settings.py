@@ -57,7 +57,9 @@ class ServiceSettings:
     video_queue: int = field(default=60, metadata=_about(
         "access units kept per video stream (h264 / h265): each one must be decoded, so the "
         "queue holds what arrives while the worker tracks; beyond it a unit is dropped and "
-        "the stream resynchronises at its next keyframe (counted and reported)"))
+        "the stream resynchronises at its next keyframe (counted and reported); whatever "
+        "the count, a stream's queue holds at most the larger of 32 MiB and two frames of "
+        "max_payload"))
     video_key: str = field(default="video/{stream}/stream", metadata=_about(
         "where a stream's video also arrives as CDR foxglove.CompressedVideo access units "
         "(BlueOS's MAVLink camera manager's convention); '{stream}' is the stream id; empty: "

@@ -103,6 +103,10 @@ class _Inbox:
     its newest ``frame_queue`` frames; a video stream (h264 / h265 units, or anything on its
     CompressedVideo key) ``video_queue`` units, since each one must reach the decoder.
 
+    Whatever the count, the queue also holds at most ``max_bytes`` (the larger of 32 MiB and
+    two frames of ``max_payload``): a station flooding a video stream with huge units cannot
+    claim ``video_queue`` times ``max_payload`` of memory.
+
     Units on the CompressedVideo key carry no number: they are numbered here, as they arrive
     (refused ones included), so that a unit lost to the rate limit or the queue shows as a gap
     to the decoder, which then waits for a keyframe instead of decoding from a broken chain."""
@@ -111,12 +115,16 @@ class _Inbox:
                  rate: float, max_payload: int, wake: threading.Event, metrics: Any) -> None:
         self.key = key
         self.video_key = video_key
-        self.frames: deque[tuple[bytes, int, str, int | None]] = deque(
-            maxlen=max(image_queue, video_queue))
+        #: bounded by ``limit`` and ``max_bytes``, trimmed on every append (no ``maxlen``: its
+        #: silent drops would escape the byte count)
+        self.frames: deque[tuple[bytes, int, str, int | None]] = deque()
         self.image_queue, self.video_queue = image_queue, video_queue
         #: entries kept: ``image_queue`` until the stream turns out to be video
         self.limit = image_queue
         self.video_seq = 0
+        self.max_bytes = max(32 << 20, 2 * (max_payload + 1024))
+        self._bytes = 0
+        self._lock = threading.Lock()  # the byte count is shared with the loop's pops
         self.bucket = TokenBucket(rate)
         self.max_payload = max_payload
         self.wake = wake
@@ -156,12 +164,13 @@ class _Inbox:
                 # a video unit: the whole group of pictures must be kept from the first one
                 # (the loop confirms it when it decodes the message, whatever its field order)
                 self.limit = self.video_queue
-            self.frames.append((data, time.time_ns(), source, seq))
-            while len(self.frames) > self.limit:
-                try:
-                    self.frames.popleft()  # the gap shows in the numbers, and is counted
-                except IndexError:  # the loop took it meanwhile
-                    break
+            with self._lock:
+                self.frames.append((data, time.time_ns(), source, seq))
+                self._bytes += len(data)
+                while len(self.frames) > 1 and (len(self.frames) > self.limit
+                                                or self._bytes > self.max_bytes):
+                    # the oldest goes: the gap shows in the numbers, and is counted
+                    self._bytes -= len(self.frames.popleft()[0])
             self.wake.set()
 
     def _refuse(self, code: ErrorCode) -> None:
@@ -170,10 +179,12 @@ class _Inbox:
         self.wake.set()
 
     def pop(self) -> tuple[bytes, int, str, int | None] | None:
-        try:
-            return self.frames.popleft()
-        except IndexError:
-            return None
+        with self._lock:
+            if not self.frames:
+                return None
+            item = self.frames.popleft()
+            self._bytes -= len(item[0])
+            return item
 
 
 @dataclass
