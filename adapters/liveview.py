@@ -78,7 +78,10 @@ def draw(picture: np.ndarray, results: list[tuple[int, Result]], scale: float) -
         conf = "" if r.confidence is None else f" {r.confidence:.2f}"
         label = f"{r.session_id[:8]} {state}{conf}"
         (tw, th), _ = cv2.getTextSize(label, cv2.FONT_HERSHEY_SIMPLEX, 0.5, 1)
-        ty = max(round(y) - 4, th + 4)
+        # above the box, clear of its edge; below it where there is no room above
+        ty = round(y) - 2 * thick - 3
+        if ty < th + 4:
+            ty = round(y + h) + 2 * thick + th + 4
         cv2.rectangle(out, (round(x), ty - th - 4), (round(x) + tw + 4, ty + 2), (0, 0, 0), -1)
         cv2.putText(out, label, (round(x) + 2, ty - 2), cv2.FONT_HERSHEY_SIMPLEX, 0.5, colour,
                     1, cv2.LINE_AA)
@@ -134,10 +137,13 @@ class Watch:
     def _on_result(self, result: Result) -> None:
         with self._lock:
             self._colours.setdefault(result.session_id, len(self._colours))
-            recent = self._by_session.setdefault(result.session_id, OrderedDict())
-            recent[result.frame_seq] = result
-            while len(recent) > _RECENT:
-                recent.popitem(last=False)
+            if result.status.value == "stopped":  # nothing more to wait for or to draw
+                self._by_session.pop(result.session_id, None)
+            else:
+                recent = self._by_session.setdefault(result.session_id, OrderedDict())
+                recent[result.frame_seq] = result
+                while len(recent) > _RECENT:
+                    recent.popitem(last=False)
         event = json.dumps({
             "session_id": result.session_id, "frame_seq": result.frame_seq,
             "status": result.status.value, "box": _finite(result.box),
@@ -151,11 +157,14 @@ class Watch:
 
     def _pick(self) -> tuple[int, TapFrame | np.ndarray, list[tuple[int, Result]]] | None:
         """The frame to render: the newest one every session has answered (so the boxes are
-        that frame's), else, for a stream without answers, the newest one."""
+        that frame's), else, for a stream without answers, the newest one. A session whose
+        last answer is older than every frame kept (it lags far behind, or ended unseen) does
+        not hold the picture back."""
         with self._lock:
             if not self._frames:
                 return None
-            answered = [max(r) for r in self._by_session.values() if r]
+            oldest = next(iter(self._frames))
+            answered = [max(r) for r in self._by_session.values() if r and max(r) >= oldest]
             candidates = [s for s in self._frames if not answered or s <= min(answered)]
             seq = max(candidates) if candidates else next(reversed(self._frames))
             if seq == self.rendered_seq:

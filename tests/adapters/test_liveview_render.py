@@ -1,0 +1,102 @@
+"""Which picture the live view renders and what it draws on it: each session's box on the
+frame the box belongs to, and a session that ended or fell far behind never freezes the view."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+from typing import Any
+
+import numpy as np
+
+from adapters.liveview import Watch, colour_bgr, draw
+from adapters.tap import TapFrame
+from schemas import Result
+
+
+class _Sub:
+    def close(self) -> None:
+        pass
+
+    undeclare = close
+
+
+class FakeClient:
+    """Just what a stream tap asks of a client: it keeps the callbacks to call them."""
+
+    def __init__(self) -> None:
+        self.callbacks: dict[str, Any] = {}
+        self.session = SimpleNamespace(declare_subscriber=self._declare)
+
+    def _declare(self, key: str, callback: Any) -> _Sub:
+        self.callbacks["video"] = callback
+        return _Sub()
+
+    def frames(self, stream_id: str, callback: Any) -> _Sub:
+        self.callbacks["frames"] = callback
+        return _Sub()
+
+    def results(self, stream_id: str, callback: Any) -> _Sub:
+        self.callbacks["results"] = callback
+        return _Sub()
+
+
+def result(session: str, seq: int, status: str = "tracking",
+           box: tuple[float, ...] = (11, 21, 40, 30)) -> Result:
+    return Result(session_id=session, stream_id="cam", frame_seq=seq, capture_ts_ns=1,
+                  box=list(box), peak=0.5, psr=10.0, aberrance=0.01, aberrance_release=0.01,
+                  scale=1.0, status=status, dropped=0, received_ts_ns=1, decode_s=0.0,
+                  track_s=0.0, published_ts_ns=1, confidence=0.9, track_state="tracking")
+
+
+def watch() -> tuple[Watch, Any]:
+    w = Watch(FakeClient(), "cam", max_fps=0.001, max_width=960, video_key=None)  # type: ignore[arg-type]
+    return w, w._on_frame
+
+
+def frame(seq: int) -> TapFrame:
+    return TapFrame("cam", seq, 1, "jpeg", b"jpeg")
+
+
+def test_the_newest_frame_every_session_answered_is_rendered_with_its_boxes() -> None:
+    w, on_frame = watch()
+    try:
+        for k in range(5):
+            on_frame(frame(k))
+        w._on_result(result("a", 3))
+        w._on_result(result("b", 2))
+        seq, _, drawn = w._pick()
+        assert seq == 2
+        assert {r.session_id: r.frame_seq for _, r in drawn} == {"b": 2}  # a's 3 is later
+        w._on_result(result("a", 2))
+        seq, _, drawn = w._pick()
+        assert {r.session_id: r.frame_seq for _, r in drawn} == {"a": 2, "b": 2}
+    finally:
+        w.close()
+
+
+def test_an_ended_or_stale_session_does_not_freeze_the_view() -> None:
+    w, on_frame = watch()
+    try:
+        for k in range(3):
+            on_frame(frame(k))
+        w._on_result(result("a", 2))
+        w._on_result(result("b", 1))
+        assert w._pick()[0] == 1
+        w._on_result(result("b", 1, status="stopped"))  # b ended
+        assert w._pick()[0] == 2
+        w._on_result(result("c", 0))  # c answers frame 0 only and falls behind
+        for k in range(3, 20):
+            on_frame(frame(k))
+        w._on_result(result("a", 19))
+        assert w._pick()[0] == 19  # frame 0 is long gone: c no longer holds it back
+    finally:
+        w.close()
+
+
+def test_boxes_are_drawn_in_the_sessions_colour_where_the_result_says() -> None:
+    picture = np.zeros((100, 200, 3), np.uint8)
+    out = draw(picture, [(0, result("a", 0, box=(11, 21, 40, 30)))], scale=1.0)
+    # 1-based (11, 21) is pixel (10, 20): the edges run there, in the session's colour
+    assert tuple(out[20, 30]) == colour_bgr(0) and tuple(out[35, 10]) == colour_bgr(0)
+    assert tuple(out[50, 30]) == colour_bgr(0) and tuple(out[35, 50]) == colour_bgr(0)
+    assert tuple(out[35, 30]) == (0, 0, 0)  # inside: untouched
