@@ -10,7 +10,7 @@ import numpy as np
 import scipy.fft as sfft
 
 from ._jit import kernel
-from .fourier import first_argmax_colmajor
+from .fourier import first_argmax_colmajor, roll2d
 
 
 def peak_index(m: np.ndarray) -> tuple[int, int]:
@@ -20,7 +20,7 @@ def peak_index(m: np.ndarray) -> tuple[int, int]:
 
 def shift_to(m: np.ndarray, peak_from: tuple[int, int], peak_to: tuple[int, int]) -> np.ndarray:
     """M[ψ_{p,q}]: circularly shift ``m`` so its peak moves from ``peak_from`` to ``peak_to``."""
-    return np.roll(m, (peak_to[0] - peak_from[0], peak_to[1] - peak_from[1]), axis=(0, 1))
+    return roll2d(m, peak_to[0] - peak_from[0], peak_to[1] - peak_from[1])
 
 
 def map_difference(m_prev_shifted: np.ndarray, m_curr: np.ndarray) -> tuple[float, float]:

@@ -163,22 +163,25 @@ def h_step(spectrum: np.ndarray, crop: Crop, scale: float, hermitian: bool) -> n
     # pocketfft's norm_fct: 1 / N in long double, rounded to the data's precision
     fct = np.float32(np.longdouble(1) / np.longdouble(height * width))
     n_d = spectrum.shape[0]
-    out = np.zeros_like(spectrum)
     if hermitian:
         passed = sfft.ifft(spectrum, axis=-2, norm="forward")[:, rows, :]
         h = sfft.irfft(passed, n=width, axis=-1, norm="forward")
         h *= fct
         kept = np.zeros_like(h)
         np.multiply(h[:, :, cols], scale, out=kept[:, :, cols])
+        out = np.empty_like(spectrum)  # zero outside the kept rows; the last pass in place
+        out[:, : rows.start] = 0
+        out[:, rows.stop :] = 0
         out[:, rows, :] = sfft.rfft(kept, axis=-1)
-        return sfft.fft(out, axis=-2)
+        return sfft.fft(out, axis=-2, overwrite_x=True)
+    out = np.zeros_like(spectrum)
     passed = sfft.ifft(spectrum, axis=-2, norm="forward")
     passed.view(np.float32)[...] *= fct
     h = sfft.ifft(passed[:, rows, :], axis=-1, norm="forward")
     kept = np.zeros((n_d, height, cols.stop - cols.start), spectrum.dtype)
     np.multiply(h[:, :, cols], scale, out=kept[:, rows, :])
     out[:, :, cols] = sfft.fft(kept, axis=-2)
-    return sfft.fft(out, axis=-1)
+    return sfft.fft(out, axis=-1, overwrite_x=True)
 
 
 @kernel

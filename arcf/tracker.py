@@ -40,6 +40,7 @@ from .features.patches import matlab_round, pyramid_windows, release_windows
 from .features.sse import load_sse_tables
 from .fourier import (
     correlate,
+    fftshift2d,
     full_spectrum,
     gaussian_label,
     hann2d,
@@ -284,7 +285,7 @@ class ARCFTracker:
             first = spatial_response(
                 correlate(state.g_f, state.model_xf[None])[0], layout.grid, self._hermitian
             )
-            state.m_prev = sfft.fftshift(first)
+            state.m_prev = fftshift2d(first)
             state.p_prev = peak_index(state.m_prev)
             if scale_filter is not None:
                 scale_filter.update(image, state.pos, layout.target_size, state.scale_factor,
@@ -380,7 +381,7 @@ class ARCFTracker:
         c, pos, response = best
         state.pos = pos
         state.model_xf, state.g_f = state.trusted
-        state.m_prev = sfft.fftshift(response)
+        state.m_prev = fftshift2d(response)
         state.p_prev = peak_index(state.m_prev)
         state.trusted = state.search = None
         self._monitor.resume()
@@ -507,7 +508,7 @@ class ARCFTracker:
     ) -> tuple[float, float, np.ndarray | None]:
         """Step 2: map difference (Eq. 2) and the aberrance target of the next ADMM solve."""
         state = self.state
-        m_curr = sfft.fftshift(response)
+        m_curr = fftshift2d(response)
         p_curr = peak_index(m_curr)
         m_prev_shifted = shift_to(state.m_prev, state.p_prev, p_curr)
         frob, spectral = map_difference(m_prev_shifted, m_curr)

@@ -119,31 +119,68 @@ def _kernel_shrink(h: int, w: int, out_hw: tuple[int, int]) -> bool:
 
 
 def resize_area_windows(
-    region: np.ndarray, windows: list[tuple[int, int, int, int]], out_hw: tuple[int, int]
+    image: np.ndarray, windows: list[tuple[int, int, int, int]], out_hw: tuple[int, int]
 ) -> np.ndarray:
-    """``resize_area`` of several windows ``(top, left, h, w)`` of one ``(H, W, C)`` uint8 image.
+    """``resize_area`` of several windows ``(top, left, h, w)`` of one ``(H, W, C)`` uint8 image,
+    each border-replicated where it leaves the image (as ``crop_replicate`` would cut it).
 
-    The same result as resizing each crop on its own, bit for bit, with the image transposed
-    once for all of them (the DSST scale filter cuts 33 nested windows of one region twice a
-    frame; transposing each was a third of their cost). Returns ``(N, oh, ow, C)``.
+    The same result as cutting and resizing each window on its own, bit for bit, with the
+    image transposed once for all of them (the DSST scale filter cuts 33 nested windows of one
+    region twice a frame; transposing each was a third of their cost). Windows leaving the
+    image are not copied with a replicated border: their area tables point at the edge pixel
+    instead, which reads the same values (a replicated row's horizontal sums are the edge
+    row's, bit for bit), so only the part inside the image is transposed. Returns ``(N, oh,
+    ow, C)``.
     """
-    height, width, cn = region.shape
+    height, width, cn = image.shape
     oh, ow = out_hw
     out = np.empty((len(windows), oh, ow, cn), np.uint8)
-    columns: np.ndarray | None = None
+    kernel_windows = []
     for i, (top, left, h, w) in enumerate(windows):
-        if top < 0 or left < 0 or top + h > height or left + w > width:
-            raise ValueError(f"window {(top, left, h, w)} leaves the {height}x{width} image")
-        if not _kernel_shrink(h, w, out_hw):
-            out[i] = _opencv(region[top: top + h, left: left + w], out_hw)
-            continue
-        if columns is None:
-            columns = cv2.transpose(region.reshape(height, width * cn))
+        if _kernel_shrink(h, w, out_hw):
+            kernel_windows.append(i)
+        else:
+            from .patches import crop_replicate  # noqa: PLC0415 - patches imports this module
+
+            out[i] = _opencv(crop_replicate(image, top, left, h, w), out_hw)
+    if not kernel_windows:
+        return out
+    # the image part the windows read: their cover, clamped to at least one row and column
+    r0 = _clamp(min(windows[i][0] for i in kernel_windows), 0, height - 1)
+    r1 = _clamp(max(windows[i][0] + windows[i][2] for i in kernel_windows), r0 + 1, height)
+    c0 = _clamp(min(windows[i][1] for i in kernel_windows), 0, width - 1)
+    c1 = _clamp(max(windows[i][1] + windows[i][3] for i in kernel_windows), c0 + 1, width)
+    columns = cv2.transpose(image[r0:r1, c0:c1].reshape(r1 - r0, (c1 - c0) * cn))
+    for i in kernel_windows:
+        top, left, h, w = windows[i]
         ystart, yindex, yalpha = _area_table(h, oh)
         xstart, xindex, xalpha = _area_table(w, ow)
-        view = columns[left * cn: (left + w) * cn, top: top + h]
+        rs, re = _inside(top, h, r0, r1)
+        cs, ce = _inside(left, w, c0, c1)
+        if rs != top or re != top + h:  # rows outside read the edge row
+            yindex = _read_only(np.clip(yindex + (top - rs), 0, re - rs - 1))
+        if cs != left or ce != left + w:
+            xindex = _read_only(np.clip(xindex + (left - cs), 0, ce - cs - 1))
+        view = columns[(cs - c0) * cn: (ce - c0) * cn, rs - r0: re - r0]
         _resize_area_u8(view, cn, ystart, yindex, yalpha, xstart, xindex, xalpha, out[i])
     return out
+
+
+def _read_only(a: np.ndarray) -> np.ndarray:
+    """As the cached tables are: one compiled signature of the kernel for both."""
+    a.setflags(write=False)
+    return a
+
+
+def _clamp(v: int, lo: int, hi: int) -> int:
+    return min(max(v, lo), hi)
+
+
+def _inside(start: int, size: int, lo: int, hi: int) -> tuple[int, int]:
+    """The pixels ``[s, e)`` of ``[start, start + size)`` inside ``[lo, hi)``; the nearest
+    edge pixel when none is."""
+    s = _clamp(start, lo, hi - 1)
+    return s, _clamp(start + size, s + 1, hi)
 
 
 def resample_area(
