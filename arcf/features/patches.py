@@ -82,7 +82,7 @@ def _halving_runs(start: int, size: int, n: int) -> tuple[int, int, int]:
     A block is inside when both its pixels are distinct image pixels; every other block reads
     one edge pixel twice (a block straddling the edge reads the edge and its replica)."""
     blocks = size // 2
-    first = min(max(-(-(-start) // 2), 0), blocks)  # ceil(-start / 2), clamped
+    first = min(max(-(start // 2), 0), blocks)  # ceil(-start / 2), clamped
     last = min(max((n - start) // 2, first), blocks)  # blocks ending at or before pixel n
     return first, last - first, blocks - last
 

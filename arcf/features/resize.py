@@ -140,7 +140,7 @@ def resize_area_windows(
         if _kernel_shrink(h, w, out_hw):
             kernel_windows.append(i)
         else:
-            from .patches import crop_replicate  # noqa: PLC0415 - patches imports this module
+            from .patches import crop_replicate  # here: patches imports this module
 
             out[i] = _opencv(crop_replicate(image, top, left, h, w), out_hw)
     if not kernel_windows:

@@ -164,3 +164,47 @@ def test_release_windows_are_bacf_patch_window_by_window() -> None:
         got = release_windows(frame, pos, sizes, out_hw)
         for g, size in zip(got, sizes, strict=True):
             np.testing.assert_array_equal(g, bacf_patch(frame, pos, size, out_hw))
+
+
+@pytest.mark.parametrize("channels", [1, 3])
+def test_windows_leaving_the_image_read_its_edge_as_a_replicated_crop(channels: int) -> None:
+    """Windows partly or wholly outside the image (the trackers' windows around a large
+    target in a 720-px frame) equal OpenCV's area resize of the border-replicated crop, bit for
+    bit, although no replicated copy is made (the area tables point at the edge pixel)."""
+    from arcf.features.patches import crop_replicate
+    from arcf.features.resize import resize_area_windows
+
+    rng = np.random.default_rng(29 + channels)
+    for _ in range(60):
+        ih, iw = (int(v) for v in rng.integers(8, 120, 2))
+        image = rng.integers(0, 256, (ih, iw, channels), dtype=np.uint8)
+        out_hw = (int(rng.integers(4, 40)), int(rng.integers(4, 40)))
+        windows = []
+        for _ in range(int(rng.integers(1, 6))):
+            h, w = (int(v) for v in rng.integers(2, 200, 2))
+            top, left = rng.integers(-h - 20, ih + 20), rng.integers(-w - 20, iw + 20)
+            windows.append((int(top), int(left), h, w))
+        got = resize_area_windows(image, windows, out_hw)
+        for g, (top, left, h, w) in zip(got, windows, strict=True):
+            np.testing.assert_array_equal(g, _opencv(crop_replicate(image, top, left, h, w),
+                                                     out_hw))
+
+
+def test_halving_a_window_that_leaves_the_image_is_opencv_on_its_replicated_crop() -> None:
+    """The pyramid's first level, built from the image inside and thin strips of its edge
+    pixels, is OpenCV's 2x area shrink of the border-replicated window, bit for bit: windows
+    inside, straddling each edge at either parity, wholly outside, grey and colour."""
+    from arcf.features.patches import crop_replicate, halve_replicated
+
+    rng = np.random.default_rng(31)
+    for _ in range(400):
+        ih, iw = (int(v) for v in rng.integers(3, 60, 2))
+        image = rng.integers(0, 256, (ih, iw, int(rng.choice([1, 3]))), dtype=np.uint8)
+        h, w = (2 * int(v) for v in rng.integers(1, 60, 2))
+        top, left = int(rng.integers(-80, ih + 10)), int(rng.integers(-80, iw + 10))
+        np.testing.assert_array_equal(
+            halve_replicated(image, top, left, h, w),
+            _opencv(crop_replicate(image, top, left, h, w), (h // 2, w // 2)))
+    frame = rng.integers(0, 256, (720, 1280, 3), dtype=np.uint8)  # boat1's 1112-px window
+    np.testing.assert_array_equal(halve_replicated(frame, -190, 40, 1112, 1112),
+                                  _opencv(crop_replicate(frame, -190, 40, 1112, 1112), (556, 556)))
