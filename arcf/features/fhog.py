@@ -221,20 +221,23 @@ def fhog(
     except AttributeError:
         out = np.empty((n_img, hb, wb, n_out), np.float32)
     step = _chunk_size(height, width, hb, wb, n_orients)
-    for i in range(0, n_img, step):
-        chunk = x[i : i + step]
-        n_chunk = chunk.shape[0]
-        # R1 and (filled later) R2, orientation-major: (3n, N * hb * wb).
-        r = _scratch("r", (3 * n_orients, n_chunk * hb * wb), np.float32)
-        r1 = r[: 2 * n_orients].reshape(2 * n_orients, n_chunk, hb, wb)
-        if fused:
-            _release_histogram(chunk, cell_size, n_orients, out=r1, reverse=reverse)
-        else:
-            gx, gy, mag2 = _dominant_gradient(chunk, hb * cell_size, wb * cell_size)
-            _histogram(gx, gy, mag2, cell_size, n_orients, out=r1, release=release,
-                       tables=tables)
-        _normalise(r, n_chunk, hb, wb, cell_size, n_orients, clip, window,
-                   out=out[i : i + n_chunk])
+    if fused and x.dtype == np.uint8:  # the trackers' case: one compiled call
+        _release_fhog_uint8(x, step, cell_size, n_orients, clip, window, reverse, out)
+    else:
+        for i in range(0, n_img, step):
+            chunk = x[i : i + step]
+            n_chunk = chunk.shape[0]
+            # R1 and (filled later) R2, orientation-major: (3n, N * hb * wb).
+            r = _scratch("r", (3 * n_orients, n_chunk * hb * wb), np.float32)
+            r1 = r[: 2 * n_orients].reshape(2 * n_orients, n_chunk, hb, wb)
+            if fused:
+                _release_histogram(chunk, cell_size, n_orients, out=r1, reverse=reverse)
+            else:
+                gx, gy, mag2 = _dominant_gradient(chunk, hb * cell_size, wb * cell_size)
+                _histogram(gx, gy, mag2, cell_size, n_orients, out=r1, release=release,
+                           tables=tables)
+            _normalise(r, n_chunk, hb, wb, cell_size, n_orients, clip, window,
+                       out=out[i : i + n_chunk])
     if not np.shares_memory(out, result):
         result[...] = out.reshape(shape)
     return result
@@ -899,9 +902,66 @@ def _release_histogram(
         if reverse:
             raise ValueError("_release_histogram: reverse is for uint8 images")
     # the kernel also applies _rescale_border
-    _release_votes(np.ascontiguousarray(x), _band_order(hb, cell), row_base, col0, w_top,
+    _release_votes(np.ascontiguousarray(x), 0, _band_order(hb, cell), row_base, col0, w_top,
                    w_bottom, _release_plane_offsets(n_orients, plane), bins, mags, plane, hb,
                    wb, cell, reverse, acc, out)
+
+
+def _release_fhog_uint8(
+    x: np.ndarray, step: int, cell: int, n_orients: int, clip: float, window: np.ndarray,
+    reverse: bool, out: np.ndarray,
+) -> None:
+    """``fhog``'s chunk loop for uint8 images in the release arithmetic, in one compiled call
+    (``_release_chunks``): each chunk of ``step`` images through ``_release_histogram``'s
+    kernel and ``_normalise``'s, the same calls on the same scratch, so the same bits.
+
+    Why: the trackers' 200x200 patches go one per chunk, and the Python between the kernels
+    (scratch views, cached tables, two dispatches with 16 arguments) cost ~40 µs a patch, six
+    patches a frame.
+    """
+    n_img = x.shape[0]
+    hb, wb = out.shape[1:3]
+    n_chunk = min(step, n_img)
+    plane = n_chunk * (hb + 1) * (wb + 1)
+    size = 2 * n_orients * plane
+    if size + wb + 2 >= 2**31:
+        raise ValueError("fhog: batch too large for int32 histogram indices; split it")
+    row_base, col0, w_top, w_bottom = _voting_rows(hb, wb, cell)
+    acc = _scratch("acc", (2 * (size + wb + 2),), np.float32)
+    r = _scratch("r", (3 * n_orients * n_chunk * hb * wb,), np.float32)
+    bins, mags = _release_pixel_tables(n_orients)
+    eps = np.float32(1e-4) / 4 / cell / cell / cell / cell
+    half_clip = np.float32(0.5 * float(np.float32(clip)))
+    texture = np.float32(2.0) * _TEXTURE_WEIGHT
+    _release_chunks(np.ascontiguousarray(x), step, _band_order(hb, cell), row_base, col0,
+                    w_top, w_bottom, _NO_OFFSETS, bins, mags, hb, wb, cell, reverse, n_orients,
+                    eps, half_clip, texture, np.ascontiguousarray(window).reshape(-1), acc, r,
+                    out)
+
+
+_NO_OFFSETS = np.zeros(0, np.int32)  # the tabulated kernel reads bins, not offsets
+
+
+@kernel
+def _release_chunks(
+    x, step, rows, row_base, col0, w_top, w_bottom, offsets, bins, mags, hb, wb, cell, reverse,
+    n, eps, half_clip, texture, window, acc, r, out
+):  # pragma: no cover - compiled
+    """``fhog``'s per-chunk ``_release_histogram`` + ``_normalise``, for all chunks: ``acc`` and
+    ``r`` are flat scratch, shaped per chunk as those functions shape theirs."""
+    n_img = x.shape[0]
+    cells = hb * wb
+    for i0 in range(0, n_img, step):
+        n_chunk = min(step, n_img - i0)
+        plane = n_chunk * (hb + 1) * (wb + 1)
+        size = 2 * n * plane + wb + 2
+        chunk_acc = acc[: 2 * size].reshape(2, size)
+        chunk_r = r[: 3 * n * n_chunk * cells].reshape(3 * n, n_chunk * cells)
+        r1 = chunk_r[: 2 * n].reshape(2 * n, n_chunk, hb, wb)
+        _release_votes(x, i0, rows, row_base, col0, w_top, w_bottom, offsets, bins, mags, plane,
+                       hb, wb, cell, reverse, chunk_acc, r1)
+        _normalise_cells(chunk_r.reshape(3 * n, n_chunk, hb, wb), n, eps, half_clip, texture,
+                         window, out[i0: i0 + n_chunk])
 
 
 #: The largest doubled gradient component of a uint8 image: ``2 (255 - 0)`` on the border
@@ -986,8 +1046,8 @@ def _band_order(hb: int, cell: int) -> np.ndarray:
 
 @kernel
 def _release_votes(
-    x, rows, row_base, col0, w_top, w_bottom, offsets, bins, mags, plane, hb, wb, cell, reverse,
-    acc, out
+    x, i0, rows, row_base, col0, w_top, w_bottom, offsets, bins, mags, plane, hb, wb, cell,
+    reverse, acc, out
 ):  # pragma: no cover - compiled
     """Per pixel row (in ``_band_order``): the dominant gradient (``_gradient_row``), the
     modelled ``rsqrt`` (``_release_rsqrt``: float64 ``1 / sqrt``, rounded to 13 bits, capped),
@@ -1001,7 +1061,8 @@ def _release_votes(
     the tables instead of computed; ``plane`` is the accumulator's plane size, which
     ``offsets`` (used otherwise) already includes.
     """
-    n_img, height, width, channels = x.shape
+    _, height, width, channels = x.shape
+    n_img = out.shape[1]  # images i0 .. i0 + n_img - 1 of x
     w0 = wb * cell
     img_cells = (hb + 1) * (wb + 1)  # one image's padded plane
     tabulated = bins.size > 0
@@ -1032,9 +1093,9 @@ def _release_votes(
     # per pixel ran at half the speed).
     for i in range(n_img):
         if tabulated:
-            _channel_planes(x, i, reverse, byte_planes)
+            _channel_planes(x, i0 + i, reverse, byte_planes)
         else:
-            _channel_planes(x, i, False, planes)
+            _channel_planes(x, i0 + i, False, planes)
         for y in rows:
             if tabulated:
                 _gradient_index_row(byte_planes, y, int_dx, int_dy, int_best, index)
