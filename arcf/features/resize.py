@@ -139,10 +139,10 @@ def resize_area_windows(
     for i, (top, left, h, w) in enumerate(windows):
         if _kernel_shrink(h, w, out_hw):
             kernel_windows.append(i)
-        else:
-            from .patches import crop_replicate  # here: patches imports this module
-
-            out[i] = _opencv(crop_replicate(image, top, left, h, w), out_hw)
+        else:  # OpenCV's own paths (whole-factor shrinks, enlargements) on the window's pixels
+            rows = np.clip(np.arange(top, top + h), 0, height - 1)
+            cols = np.clip(np.arange(left, left + w), 0, width - 1)
+            out[i] = _opencv(image[np.ix_(rows, cols)], out_hw)
     if not kernel_windows:
         return out
     # the image part the windows read: their cover, clamped to at least one row and column
