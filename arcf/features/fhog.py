@@ -930,9 +930,7 @@ def _release_fhog_uint8(
     acc = _scratch("acc", (2 * (size + wb + 2),), np.float32)
     r = _scratch("r", (3 * n_orients * n_chunk * hb * wb,), np.float32)
     bins, mags = _release_pixel_tables(n_orients)
-    eps = np.float32(1e-4) / 4 / cell / cell / cell / cell
-    half_clip = np.float32(0.5 * float(np.float32(clip)))
-    texture = np.float32(2.0) * _TEXTURE_WEIGHT
+    eps, half_clip, texture = _normalisation_constants(cell, clip)
     _release_chunks(np.ascontiguousarray(x), step, _band_order(hb, cell), row_base, col0,
                     w_top, w_bottom, _NO_OFFSETS, bins, mags, hb, wb, cell, reverse, n_orients,
                     eps, half_clip, texture, np.ascontiguousarray(window).reshape(-1), acc, r,
@@ -1154,11 +1152,19 @@ def _normalise(
     is folded into the normalisers and the clip value (exact: a power of two), which saves a
     multiplication per value.
     """
-    eps = np.float32(1e-4) / 4 / cell / cell / cell / cell
-    half_clip = np.float32(0.5 * float(np.float32(clip)))
-    texture = np.float32(2.0) * _TEXTURE_WEIGHT
+    eps, half_clip, texture = _normalisation_constants(cell, clip)
     _normalise_cells(r.reshape(3 * n_orients, n_img, hb, wb), n_orients, eps, half_clip,
                      texture, np.ascontiguousarray(window).reshape(-1), out)
+
+
+def _normalisation_constants(
+    cell: int, clip: float
+) -> tuple[np.float32, np.float32, np.float32]:
+    """``_normalise_cells``' float32 constants: the block energy's epsilon, half the clip value
+    (the 1/2 of the orientation channels folded in) and the texture channels' weight, doubled."""
+    eps = np.float32(1e-4) / 4 / cell / cell / cell / cell
+    half_clip = np.float32(0.5 * float(np.float32(clip)))
+    return eps, half_clip, np.float32(2.0) * _TEXTURE_WEIGHT
 
 
 @kernel

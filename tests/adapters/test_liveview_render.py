@@ -3,10 +3,12 @@ frame the box belongs to, and a session that ended or fell far behind never free
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
+import pytest
 
 from adapters.liveview import Watch, colour_bgr, draw
 from adapters.tap import TapFrame
@@ -48,49 +50,50 @@ def result(session: str, seq: int, status: str = "tracking",
                   track_s=0.0, published_ts_ns=1, confidence=0.9, track_state="tracking")
 
 
-def watch() -> tuple[Watch, Any]:
+@pytest.fixture
+def watched() -> Iterator[tuple[Watch, Any]]:
+    """A stream's render state (no renderer running), and its frame callback; closed after."""
     w = Watch(FakeClient(), "cam", max_fps=0.001, max_width=960, video_key=None)  # type: ignore[arg-type]
-    return w, w._on_frame
+    try:
+        yield w, w._on_frame
+    finally:
+        w.close()
 
 
 def frame(seq: int) -> TapFrame:
     return TapFrame("cam", seq, 1, "jpeg", b"jpeg")
 
 
-def test_the_newest_frame_every_session_answered_is_rendered_with_its_boxes() -> None:
-    w, on_frame = watch()
-    try:
-        for k in range(5):
-            on_frame(frame(k))
-        w._on_result(result("a", 3))
-        w._on_result(result("b", 2))
-        seq, _, drawn = w._pick()
-        assert seq == 2
-        assert {r.session_id: r.frame_seq for _, r in drawn} == {"b": 2}  # a's 3 is later
-        w._on_result(result("a", 2))
-        seq, _, drawn = w._pick()
-        assert {r.session_id: r.frame_seq for _, r in drawn} == {"a": 2, "b": 2}
-    finally:
-        w.close()
+def test_the_newest_frame_every_session_answered_is_rendered_with_its_boxes(
+    watched: tuple[Watch, Any],
+) -> None:
+    w, on_frame = watched
+    for k in range(5):
+        on_frame(frame(k))
+    w._on_result(result("a", 3))
+    w._on_result(result("b", 2))
+    seq, _, drawn = w._pick()
+    assert seq == 2
+    assert {r.session_id: r.frame_seq for _, r in drawn} == {"b": 2}  # a's 3 is later
+    w._on_result(result("a", 2))
+    seq, _, drawn = w._pick()
+    assert {r.session_id: r.frame_seq for _, r in drawn} == {"a": 2, "b": 2}
 
 
-def test_an_ended_or_stale_session_does_not_freeze_the_view() -> None:
-    w, on_frame = watch()
-    try:
-        for k in range(3):
-            on_frame(frame(k))
-        w._on_result(result("a", 2))
-        w._on_result(result("b", 1))
-        assert w._pick()[0] == 1
-        w._on_result(result("b", 1, status="stopped"))  # b ended
-        assert w._pick()[0] == 2
-        w._on_result(result("c", 0))  # c answers frame 0 only and falls behind
-        for k in range(3, 20):
-            on_frame(frame(k))
-        w._on_result(result("a", 19))
-        assert w._pick()[0] == 19  # frame 0 is long gone: c no longer holds it back
-    finally:
-        w.close()
+def test_an_ended_or_stale_session_does_not_freeze_the_view(watched: tuple[Watch, Any]) -> None:
+    w, on_frame = watched
+    for k in range(3):
+        on_frame(frame(k))
+    w._on_result(result("a", 2))
+    w._on_result(result("b", 1))
+    assert w._pick()[0] == 1
+    w._on_result(result("b", 1, status="stopped"))  # b ended
+    assert w._pick()[0] == 2
+    w._on_result(result("c", 0))  # c answers frame 0 only and falls behind
+    for k in range(3, 20):
+        on_frame(frame(k))
+    w._on_result(result("a", 19))
+    assert w._pick()[0] == 19  # frame 0 is long gone: c no longer holds it back
 
 
 def test_boxes_are_drawn_in_the_sessions_colour_where_the_result_says() -> None:
