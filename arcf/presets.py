@@ -396,11 +396,71 @@ TUNABLE: Mapping[str, Tunable] = MappingProxyType({
 })
 
 
+#: The nested parameter groups and their types: overridable as a whole (an instance, or a dict
+#: of its fields) or field by field with a dotted name (``"state.reacquire"``), as a service
+#: request, ``--set`` and the presets reply spell them.
+NESTED_GROUPS: Mapping[str, type] = MappingProxyType(
+    {"scale_filter": ScaleFilterParams, "state": StateParams})
+
+
+def _fold_dotted(overrides: Mapping[str, Any]) -> dict[str, Any]:
+    """``{"state.reacquire": True}`` -> ``{"state": {"reacquire": True}}``, merged with a dict
+    given for the same group; a dotted name outside the nested groups is unknown."""
+    out: dict[str, Any] = {}
+    dotted: dict[str, dict[str, Any]] = {}
+    for key, value in overrides.items():
+        group, dot, field_name = key.partition(".")
+        if not dot:
+            out[key] = value
+        elif group in NESTED_GROUPS and field_name and "." not in field_name:
+            dotted.setdefault(group, {})[field_name] = value
+        else:
+            raise UnknownPresetError(
+                f"unknown parameter {key!r}; dotted names address the fields of "
+                f"{', '.join(NESTED_GROUPS)} (e.g. 'state.reacquire')")
+    for group, fields in dotted.items():
+        whole = out.get(group)
+        if whole is None:
+            out[group] = fields
+        elif isinstance(whole, dict):
+            clash = sorted(set(whole) & set(fields))
+            if clash:
+                raise InvalidParameterError(
+                    f"{group} fields {clash} given twice (as {group}.<name> and in {group})")
+            out[group] = {**whole, **fields}
+        elif isinstance(whole, NESTED_GROUPS[group]):
+            out[group] = {**{f.name: getattr(whole, f.name)
+                             for f in dataclasses.fields(whole)}, **fields}
+        else:
+            out[group] = whole  # reported below as a bad group value
+    return out
+
+
+def _nested(base: Any, group: str, value: Any) -> Any:
+    """A nested group's override (an instance or a dict of its fields, each field checked
+    against ``TUNABLE``) applied to the preset's ``base`` instance."""
+    cls = NESTED_GROUPS[group]
+    if isinstance(value, cls):
+        return value
+    if not isinstance(value, dict):
+        raise UnknownPresetError(f"{group} must be a {cls.__name__} or a dict of its fields")
+    names = {f.name for f in dataclasses.fields(cls)}
+    bad = sorted(set(value) - names)
+    if bad:
+        raise UnknownPresetError(f"unknown {group} parameter(s) {bad}; valid: {sorted(names)}")
+    for key, v in value.items():
+        tunable = TUNABLE.get(f"{group}.{key}")
+        if tunable is not None:
+            tunable.check(f"{group}.{key}", v)
+    return dataclasses.replace(base, **value)
+
+
 def make_params(preset: str | TrackerParams, **overrides: Any) -> TrackerParams:
     """A preset with keyword overrides, e.g. ``make_params("arcf-h", aberrance="release")``.
 
-    ``scale_filter`` and ``state`` may be overridden with a :class:`ScaleFilterParams` /
-    :class:`~arcf.state.StateParams` or a dict of its fields.
+    The nested groups (``scale_filter``, ``state``) may be overridden whole, with a
+    :class:`ScaleFilterParams` / :class:`~arcf.state.StateParams` or a dict of its fields, or
+    field by field with dotted names: ``make_params("arcf-hc", **{"state.reacquire": True})``.
     """
     if isinstance(preset, TrackerParams):
         base = preset
@@ -411,45 +471,25 @@ def make_params(preset: str | TrackerParams, **overrides: Any) -> TrackerParams:
                 f"unknown preset {preset!r}; choose one of {', '.join(sorted(PRESETS))}"
             )
         base = PRESETS[key]
+    overrides = _fold_dotted(overrides)
     names = {f.name for f in dataclasses.fields(TrackerParams)}
     unknown = sorted(set(overrides) - names)
     if unknown:
         raise UnknownPresetError(
-            f"unknown parameter(s) {unknown} for preset {base.name!r}; valid: {sorted(names)}"
+            f"unknown parameter(s) {unknown} for preset {base.name!r}; valid: {sorted(names)} "
+            f"and the dotted fields of {', '.join(NESTED_GROUPS)}"
         )
     if "name" in overrides:
         raise InvalidParameterError("name is the preset's; choose another preset instead")
-    sf = overrides.get("scale_filter")
-    checked = {k: v for k, v in overrides.items() if k in TUNABLE}
-    if isinstance(sf, dict):
-        sf_names = {f.name for f in dataclasses.fields(ScaleFilterParams)}
-        bad = sorted(set(sf) - sf_names)
-        if bad:
-            raise UnknownPresetError(
-                f"unknown scale_filter parameter(s) {bad}; valid: {sorted(sf_names)}"
-            )
-        checked |= {f"scale_filter.{k}": v for k, v in sf.items()}
-    elif sf is not None and not isinstance(sf, ScaleFilterParams):
-        raise UnknownPresetError("scale_filter must be a ScaleFilterParams or a dict of its fields")
-    for key, value in checked.items():
-        try:
-            TUNABLE[key].check(key, value)
-        except InvalidParameterError as exc:
-            raise InvalidParameterError(f"invalid parameters for {base.name!r}: {exc}") from None
-    if isinstance(sf, dict):
-        overrides["scale_filter"] = dataclasses.replace(base.scale_filter, **sf)
-    st = overrides.get("state")
-    if isinstance(st, dict):
-        st_names = {f.name for f in dataclasses.fields(StateParams)}
-        bad = sorted(set(st) - st_names)
-        if bad:
-            raise UnknownPresetError(f"unknown state parameter(s) {bad}; valid: {sorted(st_names)}")
-        for key, value in st.items():
-            if f"state.{key}" in TUNABLE:
-                TUNABLE[f"state.{key}"].check(f"state.{key}", value)
-        overrides["state"] = dataclasses.replace(base.state, **st)
-    elif st is not None and not isinstance(st, StateParams):
-        raise UnknownPresetError("state must be a StateParams or a dict of its fields")
+    try:
+        for key, value in overrides.items():
+            if key in TUNABLE:
+                TUNABLE[key].check(key, value)
+        for group in NESTED_GROUPS:
+            if group in overrides:
+                overrides[group] = _nested(getattr(base, group), group, overrides[group])
+    except InvalidParameterError as exc:
+        raise InvalidParameterError(f"invalid parameters for {base.name!r}: {exc}") from None
     if "features" in overrides:
         overrides["features"] = tuple(overrides["features"])
     return dataclasses.replace(base, **overrides) if overrides else base
