@@ -47,6 +47,9 @@ def main(argv: list[str] | None = None) -> int:
 
     def show(stream: SimulatedStream, got: Received) -> None:
         r = got.result
+        if got.status in ("stopped", "stale"):  # about no frame: no box to score
+            print(f"{got.status}: {r.message}", flush=True)
+            return
         x, y, w, h = r.box
         g = gt[r.frame_seq]
         err = float(np.hypot(x + w / 2 - g[0] - g[2] / 2, y + h / 2 - g[1] - g[3] / 2))

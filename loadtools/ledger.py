@@ -70,11 +70,14 @@ class StreamRecord:
     sessions: list[str] = field(default_factory=list)
     #: (frame seq, monotonic time sent)
     sent: list[tuple[int, float]] = field(default_factory=list)
-    #: results about frames (every status but ``stopped``)
+    #: results about frames (every status but ``stopped`` and ``stale``)
     received: list[Received] = field(default_factory=list)
     #: the last ``stopped`` result of each session that ended (by its stop or the service's
     #: decision): about no frame, so apart from the frame accounting and the latencies
     ended: list[Received] = field(default_factory=list)
+    #: ``stale`` notices (the stream sent no frame for the service's ``stale_after_s``): about
+    #: no frame either, kept apart the same way (a paused replay gets them)
+    stale: list[Received] = field(default_factory=list)
     foreign: int = 0
     _answers: dict[int, int] = field(default_factory=dict)
 
@@ -95,8 +98,8 @@ class StreamRecord:
                 self.foreign += 1
                 return None
             got = Received(result, now, (wall - result.capture_ts_ns) / 1e9)
-            if got.status == "stopped":
-                self.ended.append(got)
+            if got.status in ("stopped", "stale"):
+                (self.ended if got.status == "stopped" else self.stale).append(got)
                 self.cond.notify_all()
                 return got
             self.received.append(got)

@@ -140,6 +140,9 @@ class ErrorCode(str, Enum):
     #: A session the service ended by itself: no frame for ``session_idle_s``, or its
     #: station's liveliness token gone for longer than ``client_grace_s``.
     SESSION_EXPIRED = "session_expired"
+    #: Not a refusal: the code of a ``stale`` result. No frame of the session's stream has
+    #: reached the service for ``stale_after_s``, so its last box is not current.
+    NO_FRAMES = "no_frames"
     #: A stream sending more frames per second than ``max_stream_fps``.
     RATE_LIMITED = "rate_limited"
     #: An image whose header declares more pixels than ``max_pixels`` (decompression bomb).
@@ -210,6 +213,13 @@ class ResultStatus(str, Enum):
     #: is live). ``frame_seq`` is the session's last frame.
     STOPPED = "stopped"
     ERROR = "error"
+    #: Not about a frame: no frame of the session's stream has reached the service for
+    #: ``stale_after_s`` (code ``no_frames``), so the session's last box is not current and
+    #: must not be followed. Box and signals are NaN, ``track_state`` is absent (it is not a
+    #: lost target: the tracker saw nothing), ``frame_seq`` is the session's last frame (0
+    #: before its first). Repeated every ``stale_after_s`` while it lasts; the session goes
+    #: on, and its next frame's result is an ordinary one.
+    STALE = "stale"
 
 
 # ---------------------------------------------------------------------------------------------
@@ -569,10 +579,10 @@ class Result(Reply):
         default=None, description="Estimated probability, in [0, 1], that the box overlaps the "
         "target at all (IoU > 0), from the response's peak, PSR and aberrance (calibrated on "
         "real sequences, see the README's Track state). 1 on the frame a box was given. Absent "
-        "on results without a box (error, stopped).")
+        "on results without a box (error, stopped, stale).")
     track_state: TrackState | None = Field(
         default=None, description="tracking, coasting (target probably hidden, the box is a "
-        "guess) or lost. Absent on results without a box (error, stopped).")
+        "guess) or lost. Absent on results without a box (error, stopped, stale).")
     reacquired: StrictBool | None = Field(
         default=None, description="True on the frame where a lost track found its target "
         "again (re-acquisition); absent otherwise.")
@@ -581,10 +591,11 @@ class Result(Reply):
         description="Frames of this stream skipped since the session's previous result."
     )
     message: StrictStr | None = Field(
-        default=None, description='Explanation for status "error" (and why a session stopped).')
+        default=None, description='Explanation for status "error" (and why a session stopped '
+        'or went stale).')
     code: ErrorCode | None = Field(
-        default=None, description='Machine-readable reason: always set on status "error", and '
-        'on "stopped" when the service ended the session by itself.')
+        default=None, description='Machine-readable reason: always set on status "error" and '
+        '"stale" (no_frames), and on "stopped" when the service ended the session by itself.')
     received_ts_ns: TimestampNs = Field(description="When the service received the frame.")
     decode_s: AnyFloat = Field(description="Seconds spent decoding the frame.")
     track_s: AnyFloat = Field(description="Seconds spent in the tracker.")

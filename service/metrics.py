@@ -31,6 +31,11 @@ VIDEO_RESYNCS = Counter(
     ["cause"],
 )
 RESULTS = Counter("arcf_results_published_total", "Result messages published")
+STALE = Counter(
+    "arcf_sessions_stale_total",
+    "Sessions that went stale: their stream delivered no frame for stale_after_s (counted once "
+    "per episode; the notice repeated while it lasts is not counted)",
+)
 ERRORS = Counter("arcf_errors_total", "Errors by kind", ["kind"])
 CONTROL = Counter("arcf_control_requests_total", "Control requests by type and outcome",
                   ["type", "outcome"])

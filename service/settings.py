@@ -87,6 +87,12 @@ class ServiceSettings:
         "a session that produced no result for this long (its stream went quiet, or it waits "
         "for a frame that never comes) ends by itself, with a last 'stopped' result saying "
         "why (session_expired)"))
+    stale_after_s: float = field(default=1.0, metadata=_about(
+        "a session whose stream delivers no frame for this long says so at once: a result "
+        "with status 'stale' (code no_frames, no box), repeated every stale_after_s while it "
+        "lasts, so that a station stops following a box that is no longer current; the "
+        "session goes on when frames resume (session_idle_s still ends it); 0: off. Keep it "
+        "above a few frame periods of the slowest stream (1 s is 10 frames at 10 fps)"))
     client_grace_s: float = field(default=10.0, metadata=_about(
         "a session started with a client_id ends this long after that station's liveliness "
         "token disappears (unless it comes back: a reconnect)"))
@@ -137,6 +143,10 @@ class ServiceSettings:
                 and self.session_budget_ms > 0):
             raise ValueError("session_idle_s and session_budget_ms must be > 0, "
                              "client_grace_s >= 0")
+        if not (self.stale_after_s == 0 or 0.1 <= self.stale_after_s <= 3600):
+            # below 0.1 s a stream's own frame interval (and its jitter) would look stale
+            raise ValueError("stale_after_s must be 0 (off) or within [0.1, 3600] s, got "
+                             f"{self.stale_after_s!r}")
         if self.max_seq_gap < 1 or self.resync_frames < 2:
             raise ValueError("max_seq_gap must be >= 1 and resync_frames >= 2")
         if any(c in self.prefix for c in "*$?#") or self.prefix.strip("/") != self.prefix:

@@ -11,6 +11,7 @@ sleeps on that wake-up instead of polling, so it costs no CPU.
 from __future__ import annotations
 
 import logging
+import math
 import re
 import threading
 import time
@@ -70,6 +71,11 @@ class _Session:
     #: mean CPU seconds per tracked frame, exponentially weighted (``session_budget_ms``)
     cost_s: float = 0.0
     tracked: int = 0
+    #: monotonic time of its start or its last result about a frame: with its stream's last
+    #: arrival, what ``stale_after_s`` counts from (a reinit brings no frame: not counted)
+    fresh_at: float = field(default_factory=time.monotonic)
+    #: monotonic time of its last ``stale`` notice; None while its stream delivers
+    stale_noticed: float | None = None
 
     def stat(self) -> SessionStat:
         return SessionStat(self.frames, self.last_seq, self.last_result_ns,
@@ -122,6 +128,10 @@ class _Inbox:
         #: entries kept: ``image_queue`` until the stream turns out to be video
         self.limit = image_queue
         self.video_seq = 0
+        #: monotonic time of the last sample queued (never: 0): the stream delivers, so its
+        #: sessions are not stale even while the loop is busy elsewhere (written by Zenoh's
+        #: thread, read by the loop: a float assignment is atomic)
+        self.arrived = 0.0
         self.max_bytes = max(32 << 20, 2 * (max_payload + 1024))
         self._bytes = 0
         self._lock = threading.Lock()  # the byte count is shared with the loop's pops
@@ -166,6 +176,7 @@ class _Inbox:
                 self.limit = self.video_queue
             with self._lock:
                 self.frames.append((data, time.time_ns(), source, seq))
+                self.arrived = time.monotonic()
                 self._bytes += len(data)
                 while len(self.frames) > 1 and (len(self.frames) > self.limit
                                                 or self._bytes > self.max_bytes):
@@ -278,6 +289,8 @@ class Worker:
         self.memory = metrics.MEMORY.labels(process=f"worker-{index}")
         self.wake = threading.Event()
         self.pending: deque[dict[str, Any]] = deque()
+        #: when ``_check_stale`` must look next (monotonic; inf: no session can go stale)
+        self.stale_due = math.inf
         threading.Thread(target=self._pump_commands, daemon=True,
                          name=f"worker-{index}-commands").start()
 
@@ -310,6 +323,12 @@ class Worker:
             self._publish_stopped(s, reason, None)
 
     def _publish_stopped(self, s: _Session, reason: str, code: ErrorCode | None) -> None:
+        self._publish_notice(s, "stopped", reason, code)
+
+    def _publish_notice(self, s: _Session, status: str, reason: str,
+                        code: ErrorCode | None) -> None:
+        """A result about no frame (``stopped``, ``stale``): no box, NaN signals, the
+        session's last frame (0 before its first), stamped now."""
         now = time.time_ns()
         nan = float("nan")
         try:
@@ -317,11 +336,51 @@ class Worker:
                 session_id=s.session_id, stream_id=s.stream_id,
                 frame_seq=s.last_seq if s.last_seq is not None else 0, capture_ts_ns=now,
                 box=[nan, nan, nan, nan], peak=nan, psr=nan, aberrance=nan,
-                aberrance_release=nan, scale=nan, status="stopped", dropped=0,
+                aberrance_release=nan, scale=nan, status=status, dropped=0,
                 message=reason, code=code, received_ts_ns=now, decode_s=0.0, track_s=0.0,
                 published_ts_ns=now)))
         except Exception:  # shutting down: a failed notice must not block the rest
-            log.debug("final status of %s not sent", s.session_id, exc_info=True)
+            log.debug("%s notice of %s not sent", status, s.session_id, exc_info=True)
+
+    def _check_stale(self, now: float) -> float:
+        """Tell the sessions whose stream delivered no frame for ``stale_after_s`` (a
+        ``stale`` result, again every ``stale_after_s`` while it lasts); the monotonic time
+        this must look again (inf: nothing can go stale).
+
+        A session's clock runs from the later of its last result about a frame (or its start)
+        and its stream's last arrival, so a worker busy with other streams, or a frame taking
+        longer than ``stale_after_s`` to track, does not make a stream that delivers look
+        stale; frames waiting in the inbox mean the same. Cheap: a few comparisons per
+        session, run when the earliest deadline passes, not on a fixed tick."""
+        after = self.settings.stale_after_s
+        due = math.inf
+        if not after:
+            return due
+        for s in list(self.sessions.values()):
+            stream = self.streams.get(s.stream_id)
+            if stream is None:
+                continue
+            if stream.inbox.frames:  # frames are waiting: the loop gets to them this round
+                due = min(due, now + after / 10)  # and this looks again soon after
+                continue
+            since = max(s.fresh_at, stream.inbox.arrived)
+            at = since + after if s.stale_noticed is None else max(since, s.stale_noticed) + after
+            if now >= at:
+                if s.stale_noticed is None:
+                    self.metrics.STALE.inc()
+                    log.info("worker %d: session %s stale: no frame of %s for %.2f s",
+                             self.index, s.session_id, s.stream_id, now - since)
+                if s.last_seq is None:
+                    why = (f"no frame of stream {s.stream_id!r} for {now - since:.1f} s since "
+                           "the session started")
+                else:
+                    why = (f"no frame of stream {s.stream_id!r} for {now - since:.1f} s: the "
+                           f"box of frame {s.last_seq} is not current")
+                self._publish_notice(s, "stale", why, ErrorCode.NO_FRAMES)
+                s.stale_noticed = now
+                at = now + after
+            due = min(due, at)
+        return due
 
     def _end(self, s: _Session, reason: str, code: ErrorCode) -> None:
         """End a session by the service's own decision: its last result says why, the
@@ -467,6 +526,8 @@ class Worker:
         stream.sessions[s.session_id] = s
         self.sessions[s.session_id] = s
         self.metrics.SESSIONS.inc()
+        if self.settings.stale_after_s:  # it may go stale before any other deadline
+            self.stale_due = min(self.stale_due, s.fresh_at + self.settings.stale_after_s)
 
     def _sync_with_router(self) -> None:
         """Return once the router has processed this worker's latest declarations.
@@ -739,6 +800,7 @@ class Worker:
             if picture.capture_ts_ns > 0:
                 m.END_TO_END.observe(max(published - picture.capture_ts_ns, 0) / 1e9)
             s.last_activity, s.last_result_ns = time.monotonic(), published
+            s.fresh_at, s.stale_noticed = s.last_activity, None  # no longer stale
             if unusable_box:  # no tracker to run: the session ends, saying so
                 self._end(s, f"session ended: its box does not fit frame {picture.seq} "
                           f"({message})", ErrorCode.INVALID_BOX)
@@ -761,8 +823,10 @@ class Worker:
         parent = os.getppid()
         busy_s, t_window = 0.0, time.monotonic()
         while not self.stop.is_set() and os.getppid() == parent:
-            # cleared before draining: anything arriving from now on wakes the next round
-            self.wake.wait(timeout=0.5)
+            # cleared before draining: anything arriving from now on wakes the next round.
+            # Asleep until the next stale deadline at the latest (none without sessions: an
+            # idle worker still wakes only twice a second)
+            self.wake.wait(timeout=min(0.5, max(self.stale_due - time.monotonic(), 0.0)))
             self.wake.clear()
             worked = True
             # one frame per stream per round, commands in between: fair shares. The fence, the
@@ -798,6 +862,8 @@ class Worker:
                         log.warning("worker %d: a frame of stream %s took %.0f ms", self.index,
                                     stream.stream_id, 1e3 * spent)
                 now = time.monotonic()
+                if now >= self.stale_due:
+                    self.stale_due = self._check_stale(now)
                 if now - t_window >= 1.0:
                     self.busy.set(busy_s / (now - t_window))
                     self.memory.set(self.metrics.resident_bytes())
