@@ -18,6 +18,11 @@ for each configured stream of the service:
 * ``CAMERA_TRACKING_IMAGE_STATUS`` is streamed at the interval the station asks for
   (``MAV_CMD_SET_MESSAGE_INTERVAL``), mapped from the track state: tracking → ACTIVE,
   coasting → ACTIVE | COASTING, lost → ERROR, no session → IDLE;
+* a stale session is never ACTIVE: when the service says its stream stopped (a ``stale``
+  result) or no result at all came for ``stale_after_s`` (the service or its worker gone),
+  the status is ERROR with NaN coordinates and target data NONE (the spec's "NAN if
+  unknown": an autopilot must not follow the last box), with a ``STATUSTEXT`` when it
+  starts and when results resume;
 * a station's heartbeats are watched: when they stop for ``link_timeout_s`` the link is
   reported lost (the sessions go on, as a camera keeps tracking without its station), and
   found again when they come back.
@@ -61,6 +66,9 @@ TRACK_COMMANDS = (mav.MAV_CMD_CAMERA_TRACK_POINT, mav.MAV_CMD_CAMERA_TRACK_RECTA
                   mav.MAV_CMD_CAMERA_STOP_TRACKING)
 #: fastest status stream a station may ask for (100 Hz)
 MIN_INTERVAL_S = 0.01
+#: CAMERA_TRACKING_TARGET_DATA_NONE, "no target data" (a bitmask enum: no bit set), which
+#: pymavlink's generated constants leave out
+TARGET_DATA_NONE = getattr(mav, "CAMERA_TRACKING_TARGET_DATA_NONE", 0)
 
 
 @dataclass(frozen=True)
@@ -82,6 +90,10 @@ class _Camera:
     result: Result | None = None
     status_interval_s: float = 0.1
     next_status: float = 0.0
+    #: monotonic time of the session's last result, or of its start / reinit
+    heard_at: float = 0.0
+    #: what the station was last told: stale (True) or not
+    stale: bool = False
 
 
 @dataclass
@@ -139,10 +151,16 @@ def point_box(x: float, y: float, radius: float, size: tuple[int, int]) -> Box:
 
 
 def tracking_status(result: Result | None) -> int:
-    """``CAMERA_TRACKING_STATUS_FLAGS`` of a camera whose latest result is ``result``."""
+    """``CAMERA_TRACKING_STATUS_FLAGS`` of a camera whose latest result is ``result``.
+
+    A ``stale`` result (the stream's frames stopped) is ERROR, "tracking in error state":
+    the camera was asked to track and cannot. Not IDLE, which says nobody asked (the session
+    goes on and resumes with the frames), nor COASTING, which says the target is being
+    predicted (nothing is). The same flag as a lost target: the station tells them apart by
+    the coordinates, NaN for a stale session, and by the ``STATUSTEXT``."""
     if result is None:
         return mav.CAMERA_TRACKING_STATUS_FLAGS_IDLE
-    if result.status == ResultStatus.ERROR or result.track_state is None:
+    if result.status in (ResultStatus.ERROR, ResultStatus.STALE) or result.track_state is None:
         return mav.CAMERA_TRACKING_STATUS_FLAGS_ERROR
     if result.track_state is TrackState.TRACKING:
         return mav.CAMERA_TRACKING_STATUS_FLAGS_ACTIVE
@@ -184,9 +202,14 @@ class MavlinkCameras:
                  cameras: Sequence[CameraConfig], *, system_id: int = 1,
                  preset: str = "arcf-hc", overrides: Mapping[str, Any] | None = None,
                  status_interval_s: float = 0.1, heartbeat_s: float = 1.0,
-                 link_timeout_s: float = 5.0) -> None:
+                 link_timeout_s: float = 5.0, stale_after_s: float = 1.0) -> None:
+        """``stale_after_s``: a session with no result for this long is reported stale
+        (ERROR, no box), as the service reports a stream without frames; the service's own
+        setting of the same name is the right value (0: only the service's notices)."""
         if not cameras:
             raise ValueError("at least one camera (stream) is needed")
+        if not (stale_after_s >= 0 and math.isfinite(stale_after_s)):
+            raise ValueError(f"stale_after_s must be a finite number >= 0, got {stale_after_s}")
         ids = [c.component_id for c in cameras]
         if len(set(ids)) != len(ids) or not all(1 <= i <= 255 for i in ids):
             raise ValueError(f"component ids must be distinct, in 1..255: {ids}")
@@ -195,6 +218,7 @@ class MavlinkCameras:
         self.overrides = dict(overrides or {})
         self.heartbeat_s = heartbeat_s
         self.link_timeout_s = link_timeout_s
+        self.stale_after_s = stale_after_s
         self.counts: Counter[str] = Counter()
         self.conn = mavutil.mavlink_connection(connection, source_system=system_id,
                                                source_component=ids[0], autoreconnect=True)
@@ -245,8 +269,21 @@ class MavlinkCameras:
                     if result.code is not None:
                         self._statustext(cam, f"tracking ended: {result.code.value}")
                     return
-                cam.result = result
+                cam.result, cam.heard_at = result, time.monotonic()
         return seen
+
+    def stale(self, cam: _Camera, now: float) -> str | None:
+        """Why ``cam``'s session has no current box (None: it has one, or no session): the
+        service said its stream stopped, or no result came for ``stale_after_s``."""
+        with self._state_lock:
+            session, result, heard_at = cam.session_id, cam.result, cam.heard_at
+        if session is None:
+            return None
+        if result is not None and result.status == ResultStatus.STALE:
+            return "no frames" if not result.message else result.message
+        if self.stale_after_s and now - heard_at > self.stale_after_s:
+            return f"no result from the tracking service for {now - heard_at:.1f} s"
+        return None
 
     # ------------------------------------------------------------------ running
     def start(self) -> MavlinkCameras:
@@ -337,15 +374,32 @@ class MavlinkCameras:
             log.warning("mavlink: no station heartbeat for %.1f s: link lost (tracking "
                         "goes on)", now - self._last_station)
         for cam in self.cameras:
+            why = self.stale(cam, now)
+            if (why is not None) != cam.stale:  # told once per change, not per status
+                cam.stale = why is not None
+                if cam.stale:
+                    self.counts["stale"] += 1
+                    self._statustext(cam, f"tracking stale: {why}")
+                    log.warning("mavlink: camera %d stale: %s", cam.config.component_id, why)
+                elif cam.session_id is not None:  # results again (not: the session ended)
+                    self.counts["stale_ended"] += 1
+                    self._statustext(cam, "tracking resumed", mav.MAV_SEVERITY_INFO)
             if cam.status_interval_s > 0 and now >= cam.next_status:
                 cam.next_status = max(cam.next_status + cam.status_interval_s, now - 1.0)
-                self._send(cam, self._status(cam))
+                self._send(cam, self._status(cam, now))
 
-    def _status(self, cam: _Camera) -> Any:
+    def _status(self, cam: _Camera, now: float | None = None) -> Any:
+        """The camera's ``CAMERA_TRACKING_IMAGE_STATUS`` at ``now`` (monotonic; default:
+        the clock's)."""
+        stale = self.stale(cam, time.monotonic() if now is None else now) is not None
         with self._state_lock:
             session, result, mode, frame = cam.session_id, cam.result, cam.mode, cam.last_frame
         nan = float("nan")
         coords = [nan] * 7  # point_x, point_y, radius, rec_top_x/y, rec_bottom_x/y
+        if stale:  # no current box: NaN, no target data, never ACTIVE
+            return mav.MAVLink_camera_tracking_image_status_message(
+                mav.CAMERA_TRACKING_STATUS_FLAGS_ERROR, mode,
+                TARGET_DATA_NONE, *coords, 0)
         size = (frame.width, frame.height) if frame and frame.width and frame.height else None
         size = size or self._sizes.get(cam.config.stream_id)
         if session and result is not None and size and all(map(math.isfinite, result.box)):
@@ -537,6 +591,8 @@ class MavlinkCameras:
                     self.client.reinit(cam.session_id, xywh, frame_seq=frame.seq)
                     with self._state_lock:
                         cam.mode = mode
+                        if cam.result is None:  # no result yet: its wait starts again
+                            cam.heard_at = time.monotonic()
                     return mav.MAV_RESULT_ACCEPTED, None
                 except ServiceError as exc:
                     if exc.code != ErrorCode.NO_SESSION.value:
@@ -550,6 +606,7 @@ class MavlinkCameras:
             return mav.MAV_RESULT_FAILED, "the tracking service did not answer"
         with self._state_lock:
             cam.session_id, cam.result, cam.mode = ack.session_id, None, mode
+            cam.heard_at = time.monotonic()  # the first result is on its way from here
         return mav.MAV_RESULT_ACCEPTED, None
 
 
@@ -614,6 +671,10 @@ def main(argv: Sequence[str] | None = None) -> int:
                     help="CAMERA_TRACKING_IMAGE_STATUS rate until a station sets one")
     ap.add_argument("--link-timeout", type=float, default=5.0,
                     help="seconds without a station heartbeat before the link counts as lost")
+    ap.add_argument("--stale-after-s", type=float, default=1.0,
+                    help="seconds without a result before a session's status leaves ACTIVE "
+                    "(ERROR, no box): the service gone; use the service's stale_after_s "
+                    "(default %(default)s; 0: only the service's own stale notices)")
     args = ap.parse_args(argv)
     overrides = {}
     for item in args.set:
@@ -632,7 +693,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         endpoint = MavlinkCameras(
             client, args.mavlink, cameras, system_id=args.system_id, preset=args.preset,
             overrides=overrides, status_interval_s=1.0 / args.status_hz if args.status_hz else 0,
-            link_timeout_s=args.link_timeout).start()
+            link_timeout_s=args.link_timeout, stale_after_s=args.stale_after_s).start()
         print(f"arcf-mavlink: {len(cameras)} camera(s) on {args.mavlink}: "
               + ", ".join(f"{c.stream_id} as {args.system_id}/{c.component_id}"
                           for c in cameras), flush=True)

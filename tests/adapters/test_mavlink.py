@@ -1,6 +1,7 @@
 """The MAVLink camera endpoint against a real service, driven by a ground station played with
 pymavlink over UDP on loopback: capability discovery, rectangle and point tracking on a real
-sequence, status at the requested rate with the service's boxes, stop, denials, a lost link."""
+sequence, status at the requested rate with the service's boxes, stop, denials, a lost link,
+a stream that stops (the status leaves ACTIVE, and comes back with the frames)."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ import socket
 import threading
 import time
 from collections.abc import Iterator
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -17,10 +19,18 @@ import pytest
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil
 
-from adapters.mavlink import CameraConfig, MavlinkCameras, point_box, rectangle_box
+from adapters.mavlink import (
+    TARGET_DATA_NONE,
+    CameraConfig,
+    MavlinkCameras,
+    point_box,
+    rectangle_box,
+    tracking_status,
+)
 from arcf.data import data_root
 from arcf.eval import load_dataset
 from loadtools.procs import ServiceProcess, free_port
+from schemas import Result
 from service.client import TrackingClient
 
 mav = mavutil.mavlink
@@ -38,6 +48,94 @@ def test_normalised_coordinates_become_boxes() -> None:
     assert (p.x, p.y, p.w, p.h) == (577.0, 297.0, 128.0, 128.0)
     edge = point_box(0.0, 0.0, 0.05, (1280, 720))  # cut to the frame
     assert (edge.x, edge.y, edge.w, edge.h) == (1.0, 1.0, 64.0, 64.0)
+
+
+def _result(status: str, seq: int, **extra: Any) -> Result:
+    nan = float("nan")
+    boxed = status not in ("stale", "stopped")
+    return Result(session_id="s1", stream_id=STREAM, frame_seq=seq, capture_ts_ns=1,
+                  box=[321.0, 181.0, 64.0, 36.0] if boxed else [nan] * 4,
+                  peak=0.5, psr=9.0, aberrance=0.01, aberrance_release=0.01, scale=1.0,
+                  status=status, dropped=0, received_ts_ns=1, decode_s=0.0, track_s=0.0,
+                  published_ts_ns=1, **extra)
+
+
+class _Watch:
+    def close(self) -> None:
+        pass
+
+
+class _Client:
+    """What the endpoint asks of a service client before any command: its result and frame
+    callbacks, kept to be called by the test."""
+
+    def __init__(self) -> None:
+        self.callbacks: dict[str, Any] = {}
+
+    def frames(self, stream_id: str, callback: Any) -> _Watch:
+        self.callbacks["frames"] = callback
+        return _Watch()
+
+    def results(self, stream_id: str, callback: Any) -> _Watch:
+        self.callbacks["results"] = callback
+        return _Watch()
+
+
+def test_a_stale_session_is_never_active_whoever_says_so() -> None:
+    """The service's stale notice, and silence from the service (the adapter's own timeout,
+    on a clock given to it), both make the status ERROR without a box; a result about a
+    frame makes it ACTIVE again. The STATUSTEXT is sent once per change."""
+    assert tracking_status(_result("stale", 4, code="no_frames")) == \
+        mav.CAMERA_TRACKING_STATUS_FLAGS_ERROR
+    client = _Client()
+    endpoint = MavlinkCameras(client, f"udpin:127.0.0.1:{free_port()}",  # type: ignore[arg-type]
+                              [CameraConfig(STREAM, COMP)], stale_after_s=1.0)
+    try:
+        (cam,) = endpoint.cameras
+        cam.session_id, cam.mode = "s1", mav.CAMERA_TRACKING_MODE_RECTANGLE
+        cam.last_frame = SimpleNamespace(width=1280, height=720)  # type: ignore[assignment]
+        seen = client.callbacks["results"]
+        seen(_result("tracking", 3, track_state="tracking", confidence=0.9))
+        t = cam.heard_at
+        fresh = endpoint._status(cam, t + 0.5)
+        assert fresh.tracking_status == mav.CAMERA_TRACKING_STATUS_FLAGS_ACTIVE
+        assert fresh.target_data == mav.CAMERA_TRACKING_TARGET_DATA_IN_STATUS
+        assert fresh.rec_top_x == pytest.approx(320 / 1280)
+
+        def no_box(status: Any) -> bool:
+            return (status.tracking_status == mav.CAMERA_TRACKING_STATUS_FLAGS_ERROR
+                    and status.target_data == TARGET_DATA_NONE
+                    and status.tracking_mode == mav.CAMERA_TRACKING_MODE_RECTANGLE
+                    and all(np.isnan([status.point_x, status.rec_top_x, status.rec_bottom_y])))
+
+        # the service says the stream stopped: at once, whatever the clock
+        seen(_result("stale", 3, code="no_frames", message="no frame of stream 'cam1' for 1 s"))
+        assert no_box(endpoint._status(cam, cam.heard_at))
+        endpoint._tick(cam.heard_at)
+        endpoint._tick(cam.heard_at + 0.1)
+        assert endpoint.counts["stale"] == 1  # told once
+        # frames again: active
+        seen(_result("tracking", 9, track_state="tracking", confidence=0.9))
+        endpoint._tick(cam.heard_at)
+        assert endpoint._status(cam, cam.heard_at).tracking_status == \
+            mav.CAMERA_TRACKING_STATUS_FLAGS_ACTIVE
+        assert endpoint.counts["stale_ended"] == 1
+        # nothing at all from the service (gone): stale after stale_after_s, not before
+        t = cam.heard_at
+        assert endpoint._status(cam, t + 0.9).tracking_status == \
+            mav.CAMERA_TRACKING_STATUS_FLAGS_ACTIVE
+        assert no_box(endpoint._status(cam, t + 1.1))
+        assert "no result from the tracking service" in (endpoint.stale(cam, t + 1.1) or "")
+        # no session: idle, never stale
+        cam.session_id, cam.result = None, None
+        assert endpoint.stale(cam, t + 100) is None
+        assert endpoint._status(cam, t + 100).tracking_status == \
+            mav.CAMERA_TRACKING_STATUS_FLAGS_IDLE
+    finally:
+        endpoint.close()
+    with pytest.raises(ValueError, match="stale_after_s"):
+        MavlinkCameras(_Client(), f"udpin:127.0.0.1:{free_port()}",  # type: ignore[arg-type]
+                       [CameraConfig(STREAM, COMP)], stale_after_s=float("nan"))
 
 
 class Station:
@@ -106,7 +204,8 @@ def sequence() -> Any:
 @pytest.fixture
 def rig(sequence: Any) -> Iterator[dict[str, Any]]:
     """A service, a station publishing the sequence's JPEG frames at 10 fps (looped, seq
-    increasing), the MAVLink endpoint on a loopback UDP port and a MAVLink ground station."""
+    increasing) while ``publishing`` is set, the MAVLink endpoint on a loopback UDP port and a
+    MAVLink ground station."""
     service = ServiceProcess(workers=1)
     port = free_port()
     publisher = TrackingClient(connect=[service.endpoint], frame_congestion="block")
@@ -121,8 +220,8 @@ def rig(sequence: Any) -> Iterator[dict[str, Any]]:
     sent: list[int] = []
 
     def publish() -> None:
-        publishing.wait()
         for seq in range(600):  # bounded: 60 s at 10 fps
+            publishing.wait()  # cleared: the stream pauses
             if stop.is_set():
                 return
             publisher.publish_frame(STREAM, data=data[seq % len(data)], seq=seq)
@@ -144,6 +243,13 @@ def rig(sequence: Any) -> Iterator[dict[str, Any]]:
         endpoint_client.close()
         publisher.close()
         assert service.stop() == 0
+
+
+def _no_box(status: Any) -> bool:
+    """A stale camera's status: ERROR, no target data, NaN coordinates."""
+    return (status.tracking_status == mav.CAMERA_TRACKING_STATUS_FLAGS_ERROR
+            and status.target_data == TARGET_DATA_NONE
+            and all(np.isnan([status.point_x, status.rec_top_x, status.rec_bottom_y])))
 
 
 def _wait(predicate: Any, timeout: float = 10.0) -> None:
@@ -207,11 +313,15 @@ def test_a_ground_station_tracks_through_the_mavlink_camera(rig: dict[str, Any])
     assert all(s.tracking_mode == mav.CAMERA_TRACKING_MODE_RECTANGLE for s in status)
     assert all(s.tracking_status & mav.CAMERA_TRACKING_STATUS_FLAGS_ACTIVE
                or s.tracking_status == mav.CAMERA_TRACKING_STATUS_FLAGS_ERROR for s in status)
-    assert all(s.target_data == mav.CAMERA_TRACKING_TARGET_DATA_IN_STATUS for s in status)
+    boxed = [s for s in status if s.target_data == mav.CAMERA_TRACKING_TARGET_DATA_IN_STATUS]
+    # without a box, only a stale one (no result for stale_after_s: a stalled machine)
+    assert all(_no_box(s) for s in status
+               if s.target_data != mav.CAMERA_TRACKING_TARGET_DATA_IN_STATUS)
+    assert boxed
     # each status's rectangle is one of the session's published boxes (float32 on the wire)
     boxes = np.array([r.box for r in list(results) if r.session_id == session
                       and r.track_state is not None])
-    for s in status:
+    for s in boxed:
         got = np.array([s.rec_top_x * W + 1, s.rec_top_y * H + 1,
                         (s.rec_bottom_x - s.rec_top_x) * W, (s.rec_bottom_y - s.rec_top_y) * H])
         assert np.abs(boxes - got).max(axis=1).min() < 0.05, got
@@ -250,6 +360,64 @@ def test_a_ground_station_tracks_through_the_mavlink_camera(rig: dict[str, Any])
     assert after and all(s.tracking_status == mav.CAMERA_TRACKING_STATUS_FLAGS_IDLE
                          for s in after)
     assert client.status(STREAM).sessions == []
+    sub.close()
+
+
+def test_a_stream_that_stops_leaves_active_until_its_frames_resume(rig: dict[str, Any]) -> None:
+    """The station's frames stop: the service's stale notice reaches the camera, whose
+    status leaves ACTIVE (ERROR, no box) and says so; frames again: results, and a box."""
+    station, endpoint, client = rig["station"], rig["endpoint"], rig["client"]
+    results: list = []
+    sub = client.results(STREAM, callback=results.append)
+    rig["publishing"].set()
+    _wait(lambda: endpoint.link_up and endpoint.cameras[0].last_frame is not None)
+    assert station.command(mav.MAV_CMD_SET_MESSAGE_INTERVAL,
+                           mav.MAVLINK_MSG_ID_CAMERA_TRACKING_IMAGE_STATUS, 100_000)[0] == \
+        mav.MAV_RESULT_ACCEPTED
+    seq = endpoint.cameras[0].last_frame.seq
+    x, y, w, h = rig["gt"][seq % rig["n"]]
+    W, H = 1280, 720
+    assert station.command(mav.MAV_CMD_CAMERA_TRACK_RECTANGLE, (x - 1) / W, (y - 1) / H,
+                           (x - 1 + w) / W, (y - 1 + h) / H)[0] == mav.MAV_RESULT_ACCEPTED
+    session = endpoint.cameras[0].session_id
+
+    def statuses(since: float) -> list[Any]:
+        return [s for s in station.since(since, "CAMERA_TRACKING_IMAGE_STATUS")
+                if s.get_srcComponent() == COMP]
+
+    def mine(status: str) -> list[Any]:
+        return [r for r in list(results) if r.session_id == session and r.status == status]
+
+    t0 = time.monotonic()
+    _wait(lambda: any(s.target_data == mav.CAMERA_TRACKING_TARGET_DATA_IN_STATUS
+                      for s in statuses(t0)), timeout=30)  # tracking, with its box
+
+    rig["publishing"].clear()  # the stream stops
+    _wait(lambda: mine("stale"), timeout=30)
+    notice = mine("stale")[0]
+    answered = [r for r in list(results) if r.session_id == session and r.track_state]
+    assert notice.code == "no_frames" and "not current" in (notice.message or "")
+    assert notice.frame_seq == max(r.frame_seq for r in answered)  # the last frame's
+    assert all(np.isnan(notice.box)) and notice.track_state is None
+    assert notice.confidence is None
+    _wait(lambda: endpoint.cameras[0].stale)
+    t1 = time.monotonic()
+    _wait(lambda: len(statuses(t1)) >= 3)
+    assert all(_no_box(s) for s in statuses(t1))  # never ACTIVE, no box to follow
+    assert endpoint.counts["stale"] == 1
+    assert any("tracking stale" in m.text for m in station.since(t0, "STATUSTEXT"))
+
+    rig["publishing"].set()  # frames again: results about them, then a box again
+    _wait(lambda: [r for r in mine("tracking") if r.frame_seq > notice.frame_seq], timeout=30)
+    back = min((r for r in mine("tracking") if r.frame_seq > notice.frame_seq),
+               key=lambda r: r.frame_seq)
+    assert back.dropped == back.frame_seq - notice.frame_seq - 1  # the pause lost no frame
+    t2 = time.monotonic()
+    _wait(lambda: any(s.target_data == mav.CAMERA_TRACKING_TARGET_DATA_IN_STATUS
+                      for s in statuses(t2)))
+    assert endpoint.counts["stale_ended"] == 1
+    assert any("tracking resumed" in m.text for m in station.since(t1, "STATUSTEXT"))
+    assert station.command(mav.MAV_CMD_CAMERA_STOP_TRACKING)[0] == mav.MAV_RESULT_ACCEPTED
     sub.close()
 
 
