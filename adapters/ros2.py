@@ -14,7 +14,13 @@ publisher gid), and announce nodes, publishers and subscriptions with liveliness
   ``vision_msgs/msg/Detection2DArray`` with the source image's header (stamp and frame id):
   one detection, its box in pixels (centre and size, 0-based as ROS images are), its ``id``
   the session, its hypothesis ``class_id`` the track state and ``score`` the confidence;
-  results without a box (error, stopped) give an empty array;
+  results without a box (error, stopped) give an empty array, and so does a session gone
+  stale (its stream's frames stopped), stamped with the notice's time: nothing to follow;
+* it reports each session's health on ``/diagnostics`` (``diagnostic_msgs/msg/
+  DiagnosticArray``, what ``rqt_robot_monitor`` and ``diagnostic_aggregator`` read): level
+  STALE while its stream sends no frames, ERROR on an error result, WARN while the target
+  is coasting or lost, OK otherwise; at once when the level changes, else at most once a
+  second (a stale session's notices repeat, so a stale report does too);
 * a ``vision_msgs/msg/Detection2D`` on ``/arcf/<stream>/track`` starts a session on the stream
   from its ``bbox`` (pixels), or re-initialises the session named by its ``id`` (empty: the
   bridge's own session of that stream; only sessions of that stream); a 0 x 0 box stops it,
@@ -46,7 +52,7 @@ import numpy as np
 import zenoh
 from zenoh.ext import Int64, z_serialize
 
-from schemas import Result, ResultStatus
+from schemas import Result, ResultStatus, TrackState
 from service.client import ServiceError, TrackingClient
 
 from . import ros2_types as rt
@@ -59,6 +65,11 @@ log = logging.getLogger("arcf.ros2")
 DEFAULT_QOS = "::,10:,:,:,,"
 #: source frames remembered for the results' headers, per stream
 HEADERS_KEPT = 512
+#: a session's health is reported at least this often while its results come (and at once
+#: when its level changes)
+DIAGNOSTICS_PERIOD_S = 1.0
+#: ``diagnostic_msgs/msg/DiagnosticStatus`` levels
+OK, WARN, ERROR, STALE = 0, 1, 2, 3
 
 
 def mangle(name: str) -> str:
@@ -190,6 +201,43 @@ def detection_array(result: Result, header: tuple[int, str]) -> Any:
     return rt.message(rt.DETECTION_2D_ARRAY, header=h, detections=detections)
 
 
+def diagnostic_level(result: Result) -> int:
+    """A result's ``DiagnosticStatus`` level: STALE for a stream without frames (ROS's own
+    word for a sensor that stopped reporting), ERROR for an error, WARN while the target is
+    probably hidden or gone (the box is a guess), OK otherwise."""
+    if result.status == ResultStatus.STALE:
+        return STALE
+    if result.status == ResultStatus.ERROR:
+        return ERROR
+    if result.track_state in (TrackState.COASTING, TrackState.LOST):
+        return WARN
+    return OK
+
+
+def diagnostics(result: Result, node_name: str, stamp_ns: int) -> Any:
+    """A session's health as a ``diagnostic_msgs/msg/DiagnosticArray`` of one status: named
+    ``<node>: <stream> <session>``, the stream as ``hardware_id``, the result's status, track
+    state, confidence and frame as values."""
+    if result.message:
+        text = result.message
+    elif result.track_state is not None:
+        text = f"{result.track_state.value}, confidence {result.confidence or 0.0:.2f}"
+    else:
+        text = result.status.value
+    values = {"session_id": result.session_id, "status": result.status.value,
+              "track_state": result.track_state.value if result.track_state else "",
+              "confidence": "" if result.confidence is None else f"{result.confidence:.3f}",
+              "frame_seq": str(result.frame_seq),
+              "code": result.code.value if result.code is not None else ""}
+    status = rt.message(
+        "diagnostic_msgs/msg/DiagnosticStatus", level=diagnostic_level(result),
+        name=f"{node_name}: {result.stream_id} {result.session_id}", message=text,
+        hardware_id=result.stream_id,
+        values=[rt.message("diagnostic_msgs/msg/KeyValue", key=k, value=v)
+                for k, v in values.items()])
+    return rt.message(rt.DIAGNOSTIC_ARRAY, header=_header(stamp_ns, ""), status=[status])
+
+
 def _encoding(fmt: str) -> str | None:
     """``CompressedImage.format`` ("jpeg", "png", "bgr8; jpeg compressed bgr8", ...) as a
     frame encoding of the service."""
@@ -253,6 +301,10 @@ class Ros2Bridge:
         self.session = ros_session or client.session
         self.preset, self.overrides = preset, dict(overrides or {})
         self.node = Ros2Node(self.session, domain_id, node_name, namespace)
+        self.node_name = node_name
+        self.diagnostics = Ros2Publisher(self.node, "/diagnostics", rt.DIAGNOSTIC_ARRAY)
+        #: session -> (level, monotonic time) of its last health report
+        self._reported: dict[str, tuple[int, float]] = {}
         self.counts: Counter[str] = Counter()
         self._warn = _Warnings()
         self._lock = threading.Lock()
@@ -369,6 +421,9 @@ class Ros2Bridge:
             with self._lock:
                 assert s.headers is not None
                 header = s.headers.get(result.frame_seq, (result.capture_ts_ns, ""))
+                if result.status == ResultStatus.STALE:  # about no image: the notice's time
+                    last = next(reversed(s.headers.values()), (0, ""))
+                    header = (result.capture_ts_ns, last[1])
             assert s.sessions is not None
             if result.status == ResultStatus.STOPPED:
                 s.sessions.discard(result.session_id)
@@ -381,7 +436,25 @@ class Ros2Bridge:
                 s.sessions.add(result.session_id)
             s.publisher.publish(detection_array(result, header))
             self.counts["detections"] += 1
+            self._report(result)
         return on_result
+
+    def _report(self, result: Result) -> None:
+        """The session's health on ``/diagnostics``: when its level changes, else at most
+        every ``DIAGNOSTICS_PERIOD_S`` (results come at the frame rate; diagnostics are read
+        at about 1 Hz), and once more when it ends."""
+        level, now = diagnostic_level(result), time.monotonic()
+        with self._lock:
+            last = self._reported.get(result.session_id)
+            ended = result.status == ResultStatus.STOPPED
+            if ended:
+                self._reported.pop(result.session_id, None)
+            elif last is not None and last[0] == level and now - last[1] < DIAGNOSTICS_PERIOD_S:
+                return
+            else:
+                self._reported[result.session_id] = (level, now)
+        self.diagnostics.publish(diagnostics(result, self.node_name, time.time_ns()))
+        self.counts["diagnostics"] += 1
 
     def close(self) -> None:
         self._work.put(None)
@@ -393,6 +466,7 @@ class Ros2Bridge:
                 sub.undeclare()
         for s in self.streams.values():
             s.publisher.close()
+        self.diagnostics.close()
         self.node.close()
 
 
@@ -443,6 +517,8 @@ __all__ = [
     "Ros2Publisher",
     "attachment",
     "detection_array",
+    "diagnostic_level",
+    "diagnostics",
     "main",
     "mangle",
     "topic_key",

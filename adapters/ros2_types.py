@@ -16,6 +16,8 @@ from service.cdr import MessageTypes
 COMPRESSED_IMAGE = "sensor_msgs/msg/CompressedImage"
 DETECTION_2D_ARRAY = "vision_msgs/msg/Detection2DArray"
 DETECTION_2D = "vision_msgs/msg/Detection2D"
+#: a standard message of the distribution (ROS's own health reports, ``/diagnostics``)
+DIAGNOSTIC_ARRAY = "diagnostic_msgs/msg/DiagnosticArray"
 
 #: vision_msgs 4.x definitions (fields only; comments do not enter the type hash)
 VISION_MSGS = {

@@ -1,7 +1,8 @@
 """The ROS 2 adapter against rmw_zenoh's published wire format, with an independent CDR
 implementation (pycdr2) playing the ROS 2 nodes: keys, type names and hashes, CDR bytes,
 attachments and liveliness tokens, then real frames in as CompressedImage and the service's
-results out as Detection2DArray, sessions started and stopped from a topic.
+results out as Detection2DArray, sessions started and stopped from a topic, a stream that
+stops reported as STALE on /diagnostics (and no box to follow) until its images resume.
 
 (No ``from __future__ import annotations``: pycdr2 reads the dataclasses' real types.)"""
 
@@ -17,7 +18,7 @@ from pycdr2.types import array, float64, int32, sequence, uint8, uint32
 from zenoh.ext import Int64, z_deserialize
 
 from adapters import ros2_types as rt
-from adapters.ros2 import Ros2Bridge, attachment, detection_array, topic_key
+from adapters.ros2 import STALE, Ros2Bridge, attachment, detection_array, diagnostics, topic_key
 from arcf.data import data_root
 from arcf.eval import load_dataset
 from loadtools.procs import ServiceProcess
@@ -125,6 +126,27 @@ class Detection2DArray(IdlStruct, typename="vision_msgs/msg/Detection2DArray"):
     detections: sequence[Detection2D]
 
 
+@dataclass
+class KeyValue(IdlStruct, typename="diagnostic_msgs/msg/KeyValue"):
+    key: str
+    value: str
+
+
+@dataclass
+class DiagnosticStatus(IdlStruct, typename="diagnostic_msgs/msg/DiagnosticStatus"):
+    level: uint8  # ROS's "byte"
+    name: str
+    message: str
+    hardware_id: str
+    values: sequence[KeyValue]
+
+
+@dataclass
+class DiagnosticArray(IdlStruct, typename="diagnostic_msgs/msg/DiagnosticArray"):
+    header: Header
+    status: sequence[DiagnosticStatus]
+
+
 def test_keys_type_names_and_hashes_are_rmw_zenohs() -> None:
     assert rt.type_hash("sensor_msgs/msg/CompressedImage") == COMPRESSED_IMAGE_HASH
     assert rt.type_hash("std_msgs/msg/Header") == HEADER_HASH
@@ -167,6 +189,25 @@ def test_cdr_bytes_agree_with_an_independent_implementation() -> None:
     assert d.results[0].hypothesis == ObjectHypothesis("coasting", 0.875)
 
 
+def test_a_stale_session_has_no_box_and_reports_stale() -> None:
+    nan = float("nan")
+    stale = Result(session_id="s1", stream_id="cam1", frame_seq=4, capture_ts_ns=9_000_000_001,
+                   box=(nan, nan, nan, nan), peak=nan, psr=nan, aberrance=nan,
+                   aberrance_release=nan, scale=nan, status="stale", code="no_frames",
+                   message="no frame of stream 'cam1' for 1.0 s", dropped=0, received_ts_ns=6,
+                   decode_s=0.0, track_s=0.0, published_ts_ns=7)
+    got = Detection2DArray.deserialize(rt.serialize(
+        detection_array(stale, (9_000_000_001, "cam_optical")), rt.DETECTION_2D_ARRAY))
+    assert got.detections == [] and got.header == Header(Time(9, 1), "cam_optical")
+    raw = rt.serialize(diagnostics(stale, "arcf", 3_000_000_004), rt.DIAGNOSTIC_ARRAY)
+    (status,) = DiagnosticArray.deserialize(raw).status
+    assert (status.level, status.hardware_id, status.name) == (STALE, "cam1", "arcf: cam1 s1")
+    assert status.message == "no frame of stream 'cam1' for 1.0 s"
+    values = {kv.key: kv.value for kv in status.values}
+    assert values["status"] == "stale" and values["code"] == "no_frames"
+    assert values["frame_seq"] == "4" and values["track_state"] == ""
+
+
 needs_data = pytest.mark.skipif(not (data_root() / "uav123_10fps").is_dir(),
                                 reason="needs ../shared/data")
 
@@ -183,6 +224,7 @@ def test_ros2_nodes_track_through_the_bridge() -> None:
                         {"/camera/image/compressed": "cam1"})
     node = open_session("client", connect=[service.endpoint])  # the ROS 2 nodes
     received: list[tuple[bytes, bytes | None]] = []
+    health: list[DiagnosticStatus] = []
     results: list[Result] = []
     try:
         out_key = (f"0/arcf/cam1/detections/vision_msgs::msg::dds_::Detection2DArray_/"
@@ -190,6 +232,17 @@ def test_ros2_nodes_track_through_the_bridge() -> None:
         sub = node.declare_subscriber(out_key, lambda s: received.append(
             (s.payload.to_bytes(), s.attachment.to_bytes() if s.attachment else None)))
         rsub = client.results("cam1", callback=results.append)
+        dsub = node.declare_subscriber(
+            topic_key(0, "/diagnostics", rt.DIAGNOSTIC_ARRAY),
+            lambda s: health.extend(DiagnosticArray.deserialize(s.payload.to_bytes()).status))
+
+        def about_image(i: int) -> list[tuple[bytes, bytes | None]]:
+            """The detections published for image ``i`` (its header): a session's stale
+            notices (a pause of this test over a second) carry their own time instead."""
+            return [(p, a) for p, a in list(received)
+                    if Detection2DArray.deserialize(p).header == Header(Time(1000 + i, 500),
+                                                                        "cam_optical")]
+
         image_key = ("0/camera/image/compressed/sensor_msgs::msg::dds_::CompressedImage_/"
                      + COMPRESSED_IMAGE_HASH)
         track_key = topic_key(0, "/arcf/cam1/track", rt.DETECTION_2D)
@@ -234,21 +287,25 @@ def test_ros2_nodes_track_through_the_bridge() -> None:
         # garbage on the image topic: counted, the bridge goes on
         node.put(image_key, b"\x00\x01\x00\x00not cdr")
         # real frames in, lock-step: each image, then its detection
-        for i, jpeg in enumerate(data):
+        def send(i: int) -> None:
             image = CompressedImage(Header(Time(1000 + i, 500), "cam_optical"), "jpeg",
-                                    list(jpeg))
+                                    list(data[i % len(data)]))
             node.put(image_key, image.serialize(),
                      attachment=attachment(i + 1, time.time_ns(), gid))
             deadline = time.monotonic() + 15
-            while len(received) <= i and time.monotonic() < deadline:
+            while not about_image(i) and time.monotonic() < deadline:
                 time.sleep(0.01)
-        assert len(received) == len(data)
+
+        for i in range(len(data)):
+            send(i)
+        per_image = [about_image(i) for i in range(len(data))]
+        assert [len(d) for d in per_image] == [1] * len(data)
         assert bridge.counts["bad_image"] == 1
 
         mine = sorted((r for r in results if r.track_state is not None),
                       key=lambda r: r.frame_seq)
         assert [r.frame_seq for r in mine] == list(range(len(data)))
-        for i, ((payload, att), r) in enumerate(zip(received, mine, strict=True)):
+        for i, (((payload, att),), r) in enumerate(zip(per_image, mine, strict=True)):
             msg = Detection2DArray.deserialize(payload)
             assert msg.header == Header(Time(1000 + i, 500), "cam_optical")  # the image's
             (d,) = msg.detections
@@ -262,17 +319,49 @@ def test_ros2_nodes_track_through_the_bridge() -> None:
             assert att is not None and len(att) == 33
             number, _, their_gid = z_deserialize(tuple[Int64, Int64, bytes], zenoh.ZBytes(att))
             assert number == i + 1 and len(their_gid) == 16
+        session = mine[0].session_id
+        assert health and health[-1].name == f"arcf: cam1 {session}"
+
+        # the images stop: the service's stale notice becomes an empty array stamped with
+        # its own time (nothing to follow) and a STALE report on /diagnostics
+        deadline = time.monotonic() + 30
+        while not [r for r in results if r.status == "stale"] and time.monotonic() < deadline:
+            time.sleep(0.02)
+        (notice, *_) = [r for r in results if r.status == "stale"]
+        assert notice.frame_seq == len(data) - 1 and notice.code == "no_frames"
+        deadline = time.monotonic() + 10
+        while not [h for h in list(health) if h.level == STALE] and time.monotonic() < deadline:
+            time.sleep(0.02)
+        (report, *_) = [h for h in list(health) if h.level == STALE]
+        assert report.hardware_id == "cam1" and "no frame" in report.message
+        assert {kv.key: kv.value for kv in report.values}["status"] == "stale"
+        stale_arrays = [Detection2DArray.deserialize(p) for p, _ in list(received)]
+        stale_arrays = [m for m in stale_arrays if m.header.stamp.sec > 2000]
+        assert stale_arrays and all(m.detections == [] for m in stale_arrays)
+        assert stale_arrays[0].header.frame_id == "cam_optical"
+        # an image again: its detection, and the report leaves STALE
+        after = len(health)
+        send(len(data))
+        ((payload, _),) = about_image(len(data))
+        (d,) = Detection2DArray.deserialize(payload).detections
+        assert d.id == session
+        deadline = time.monotonic() + 10
+        while not [h for h in health[after:] if h.level != STALE] and \
+                time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert [h for h in health[after:] if h.level != STALE]
 
         # stop from ROS 2 (a box of size 0): the session ends, an empty array says so
         stop = Detection2D(Header(Time(0, 0), ""), [],
                            BoundingBox2D(Pose2D(Point2D(0.0, 0.0), 0.0), 0.0, 0.0), "")
         node.put(track_key, stop.serialize(), attachment=attachment(2, time.time_ns(), gid))
         deadline = time.monotonic() + 10
-        while len(received) <= len(data) and time.monotonic() < deadline:
-            time.sleep(0.02)
-        assert Detection2DArray.deserialize(received[-1][0]).detections == []
+        while len(about_image(len(data))) < 2 and time.monotonic() < deadline:
+            time.sleep(0.02)  # the stop's array: about the session's last image
+        assert Detection2DArray.deserialize(about_image(len(data))[-1][0]).detections == []
         assert client.status("cam1").sessions == []
         sub.undeclare()
+        dsub.undeclare()
         rsub.close()
     finally:
         bridge.close()
