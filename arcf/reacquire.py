@@ -1,19 +1,26 @@
-"""Re-acquisition: where a lost track looks for its target, frame after frame.
+"""Re-acquisition: where a lost track looks for its target.
 
 A correlation filter only looks inside its search window, so once the target has left the
 window (an occlusion long enough for the camera or the target to move, a fast pan, an
-out-of-view exit) no amount of waiting brings it back. While the track is ``lost``
-(:mod:`arcf.state`), the tracker keeps its last trusted appearance model (no learning) and,
-besides its usual detection where the box is, probes a few more windows each frame, at the
-track's scale, on a grid around the position where the target was last tracked. The searched
-disc grows with the time since the loss until it covers the whole frame, and the probes cycle
-through it nearest first, so the cost of a lost frame is bounded by ``probes`` extra
-single-scale windows, whatever the frame's size.
+out-of-view exit) no amount of waiting brings it back. While the track is not ``tracking``
+(:mod:`arcf.state`) the tracker learns nothing, so its filter is still the one that knew the
+target. Once the track is ``lost``, every frame:
 
-A probe wins when its response gives a confidence at or above the state machine's
-``resume_above`` and above the box's own by ``reacquire_margin``: the box jumps there, the
-track is ``tracking`` again
-and the result says ``reacquired``.
+1. **Propose** (:class:`TargetTemplate`): the grey look of the target, kept from a trusted
+   frame well before the loss, is matched over the **whole frame** at a coarse resolution
+   (normalised cross-correlation, OpenCV's ``matchTemplate``); the best few places, apart
+   from each other, are candidates. One pass over a frame shrunk so that the template is
+   about ``TEMPLATE_SIDE`` pixels: a bounded cost whatever the frame's size, and no place of
+   the frame is out of reach.
+2. **Verify** (the tracker's ``_probe``): at each candidate, one window at the track's scale
+   is correlated with the kept filter and read like a tracked frame, against the references of
+   the frames before the loss (:meth:`arcf.state.TrackMonitor.probe_confidence`). A template
+   is easily fooled by anything of the same shape and brightness; the filter, learnt on the
+   target and its background, is not.
+
+A candidate wins when its confidence reaches the state machine's ``resume_above`` and beats
+the box's own by ``reacquire_margin``: the box jumps there, the track is ``tracking`` again and
+the result says ``reacquired``.
 """
 
 from __future__ import annotations
@@ -21,73 +28,73 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import cv2
+import numpy as np
+
 #: (row, col) in the datasets' 1-based pixel frame
 Point = tuple[float, float]
 
+#: The template's shorter side after shrinking, pixels: enough detail to tell a shape, few
+#: enough pixels for one pass over the frame to cost about a tracked window.
+TEMPLATE_SIDE = 12
+#: Trusted frames between two refreshes of the kept template, and how many are kept: the one
+#: used after a loss is the oldest, taken before any slow onset of the occlusion.
+TEMPLATE_EVERY = 5
+TEMPLATE_KEEP = 3
 
-@dataclass
-class Search:
-    """The probe schedule of one loss (a new loss starts a new search).
 
-    ``centre`` is where the target was last tracked; ``window`` the side of a search window in
-    source pixels; probe centres lie on a grid of pitch ``spacing * window`` centred there,
-    within the frame, ordered by distance (nearest first, so that a target hidden where it
-    vanished is found first).
-    """
+def grey(image: np.ndarray) -> np.ndarray:
+    """(H, W) uint8 from a BGR or single-channel frame."""
+    if image.ndim == 3 and image.shape[2] == 3:
+        return cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    return image.reshape(image.shape[0], image.shape[1])
 
-    centre: Point
-    window: float
-    image_hw: tuple[int, int]
-    #: windows probed per frame
-    probes: int
-    #: radius of the searched disc at the loss, and its growth per frame, in windows
-    radius: float = 1.0
-    growth: float = 0.25
-    #: probe pitch as a fraction of the window side (half a window: every place of the frame
-    #: is near the centre of some probe, where the cosine window does not hide it)
-    spacing: float = 0.5
-    frames: int = 0
-    _cursor: int = 0
 
-    def __post_init__(self) -> None:
-        rows, cols = self.image_hw
-        pitch = max(self.spacing * self.window, 1.0)
-        r0, c0 = self.centre
-        # grid offsets reaching every border from the centre, kept inside the frame
-        i_lo, i_hi = -math.ceil((r0 - 1) / pitch), math.ceil((rows - r0) / pitch)
-        j_lo, j_hi = -math.ceil((c0 - 1) / pitch), math.ceil((cols - c0) / pitch)
-        points = []
-        for i in range(i_lo, i_hi + 1):
-            for j in range(j_lo, j_hi + 1):
-                r = min(max(r0 + i * pitch, 1.0), float(rows))
-                c = min(max(c0 + j * pitch, 1.0), float(cols))
-                points.append((math.hypot(i, j) * pitch, math.atan2(i, j), (r, c)))
-        points.sort()
-        #: every probe centre with its distance from ``centre``, nearest first
-        self._points: list[tuple[float, Point]] = [(d, p) for d, _, p in points]
+@dataclass(frozen=True)
+class TargetTemplate:
+    """The target's grey look at a trusted frame, shrunk by ``shrink`` (source pixels per
+    template pixel)."""
 
-    @property
-    def candidates(self) -> int:
-        """Probe centres over the whole frame: one full sweep takes ``candidates / probes``
-        frames once the disc covers the frame."""
-        return len(self._points)
+    #: (h, w) uint8 at the shrunk resolution
+    pixels: np.ndarray
+    shrink: float
 
-    def radius_px(self) -> float:
-        """The searched disc's radius on the current frame, source pixels."""
-        return self.window * (self.radius + self.growth * self.frames)
+    @classmethod
+    def cut(cls, image: np.ndarray, centre: Point, size_hw: tuple[float, float]) -> TargetTemplate:
+        """The box of ``size_hw`` source pixels around ``centre``, clipped to the frame and
+        shrunk so that its shorter side is about ``TEMPLATE_SIDE`` pixels (never enlarged)."""
+        rows, cols = image.shape[:2]
+        h, w = max(size_hw[0], 2.0), max(size_hw[1], 2.0)
+        shrink = max(1.0, min(h, w) / TEMPLATE_SIDE)
+        r0 = int(np.clip(round(centre[0] - 1 - h / 2), 0, rows - 2))
+        c0 = int(np.clip(round(centre[1] - 1 - w / 2), 0, cols - 2))
+        r1 = int(np.clip(round(centre[0] - 1 + h / 2), r0 + 2, rows))
+        c1 = int(np.clip(round(centre[1] - 1 + w / 2), c0 + 2, cols))
+        patch = grey(image[r0:r1, c0:c1])
+        out_hw = (max(2, round(patch.shape[0] / shrink)), max(2, round(patch.shape[1] / shrink)))
+        small = cv2.resize(patch, (out_hw[1], out_hw[0]), interpolation=cv2.INTER_AREA)
+        return cls(small, shrink)
 
-    def next_probes(self) -> list[Point]:
-        """The windows to probe on the next frame: the next ``probes`` centres within the
-        disc, cycling back to the nearest once all were visited."""
-        self.frames += 1
-        reach = self.radius_px()
-        eligible = 1
-        while eligible < len(self._points) and self._points[eligible][0] <= reach:
-            eligible += 1
-        chosen = []
-        for _ in range(min(self.probes, eligible)):
-            if self._cursor >= eligible:
-                self._cursor = 0
-            chosen.append(self._points[self._cursor][1])
-            self._cursor += 1
-        return chosen
+    def candidates(self, image: np.ndarray, count: int) -> list[tuple[float, Point]]:
+        """The ``count`` best matches over the whole frame, best first, as (score, centre),
+        each at least a template away from the better ones (non-maximum suppression)."""
+        rows, cols = image.shape[:2]
+        size = (max(1, round(cols / self.shrink)), max(1, round(rows / self.shrink)))
+        frame = cv2.resize(grey(image), size, interpolation=cv2.INTER_AREA)
+        th, tw = self.pixels.shape
+        if frame.shape[0] < th or frame.shape[1] < tw:
+            return []
+        scores = cv2.matchTemplate(frame, self.pixels, cv2.TM_CCOEFF_NORMED)
+        scores = np.nan_to_num(scores, nan=-1.0)
+        out: list[tuple[float, Point]] = []
+        for _ in range(count):
+            k = int(np.argmax(scores))
+            i, j = divmod(k, scores.shape[1])
+            score = float(scores[i, j])
+            if not math.isfinite(score) or score <= -1.0:
+                break
+            # centre of the match in the source frame's 1-based coordinates
+            out.append((score, ((i + th / 2) * self.shrink + 0.5,
+                                (j + tw / 2) * self.shrink + 0.5)))
+            scores[max(0, i - th):i + th + 1, max(0, j - tw):j + tw + 1] = -1.0
+        return out

