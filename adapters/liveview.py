@@ -8,7 +8,9 @@ service spends nothing on it) and serves one page of plain HTML and JavaScript f
 package (no build step, no CDN: it works on an offline ground station). The page lists the
 live streams and their sessions (the service's ``status``) and, for the stream chosen, shows
 its video with every session's box, state and confidence drawn on it, and scrolls each
-session's confidence and aberrance.
+session's confidence and aberrance. A session whose stream stopped (the service's ``stale``
+notice) keeps its last box on the last picture, drawn thin and grey and labelled "stale: no
+frames", until a result about a new frame comes.
 
 Its cost is bounded and paid only while someone watches: a stream is listened to from the
 first viewer's arrival to the last one's departure; pictures are rendered (decoded, scaled to
@@ -62,21 +64,30 @@ def colour_bgr(index: int) -> tuple[int, int, int]:
     return int(255 * b), int(255 * g), int(255 * r)
 
 
+#: a stale session's box and label (BGR): no session's colour, so it never reads as live
+STALE_BGR = (150, 150, 150)
+
+
 def draw(picture: np.ndarray, results: list[tuple[int, Result]], scale: float) -> np.ndarray:
     """The picture with each session's box (its colour; thinner unless ``tracking``) and a
-    label: session, state, confidence."""
+    label: session, state, confidence. A result marked ``stale`` (the session's last box,
+    its stream stopped since) is drawn thin and grey, labelled "stale: no frames": where the
+    target was, not where it is."""
     out = picture if picture.ndim == 3 else cv2.cvtColor(picture, cv2.COLOR_GRAY2BGR)
     for index, r in results:
         if r.status.value in ("error", "stopped") or not all(np.isfinite(r.box)):
             continue
         x, y, w, h = (v * scale for v in r.box)
         x, y = x - scale, y - scale  # 1-based boxes to 0-based pixels
-        colour = colour_bgr(index)
-        state = r.track_state.value if r.track_state else r.status.value
-        thick = 3 if state in ("tracking", "initialized") else 2
+        if r.status.value == "stale":
+            colour, thick, label = STALE_BGR, 1, f"{r.session_id[:8]} stale: no frames"
+        else:
+            colour = colour_bgr(index)
+            state = r.track_state.value if r.track_state else r.status.value
+            thick = 3 if state in ("tracking", "initialized") else 2
+            conf = "" if r.confidence is None else f" {r.confidence:.2f}"
+            label = f"{r.session_id[:8]} {state}{conf}"
         cv2.rectangle(out, (round(x), round(y)), (round(x + w), round(y + h)), colour, thick)
-        conf = "" if r.confidence is None else f" {r.confidence:.2f}"
-        label = f"{r.session_id[:8]} {state}{conf}"
         (tw, th), _ = cv2.getTextSize(label, cv2.FONT_HERSHEY_SIMPLEX, 0.5, 1)
         # above the box, clear of its edge; below it where there is no room above
         ty = round(y) - 2 * thick - 3
@@ -108,6 +119,11 @@ class Watch:
         self.result_count = 0
         self._frames: OrderedDict[int, TapFrame | np.ndarray] = OrderedDict()
         self._by_session: dict[str, OrderedDict[int, Result]] = {}
+        #: sessions whose stream stopped (their ``stale`` notice), until a frame's result
+        self._stale: dict[str, Result] = {}
+        #: changes of ``_stale``: the picture is drawn again when it changes, frames or not
+        self._marks = 0
+        self.rendered_marks = 0
         self._colours: dict[str, int] = {}
         self._decoder: StreamDecoder | None = None
         self._lock = threading.Lock()
@@ -137,9 +153,16 @@ class Watch:
     def _on_result(self, result: Result) -> None:
         with self._lock:
             self._colours.setdefault(result.session_id, len(self._colours))
-            if result.status.value == "stopped":  # nothing more to wait for or to draw
+            status = result.status.value
+            if status == "stale":  # about no frame: marks the session, draws nothing new
+                if result.session_id not in self._stale:
+                    self._marks += 1
+                self._stale[result.session_id] = result
+            elif self._stale.pop(result.session_id, None) is not None:
+                self._marks += 1  # a frame's result (or its end): no longer stale
+            if status == "stopped":  # nothing more to wait for or to draw
                 self._by_session.pop(result.session_id, None)
-            else:
+            elif status != "stale":
                 recent = self._by_session.setdefault(result.session_id, OrderedDict())
                 recent[result.frame_seq] = result
                 while len(recent) > _RECENT:
@@ -147,6 +170,7 @@ class Watch:
         event = json.dumps({
             "session_id": result.session_id, "frame_seq": result.frame_seq,
             "status": result.status.value, "box": _finite(result.box),
+            "message": result.message,
             "state": result.track_state.value if result.track_state else None,
             "confidence": result.confidence, "aberrance": _finite([result.aberrance])[0],
             "colour": "#" + bytes(colour_bgr(self._colours[result.session_id])[::-1]).hex()})
@@ -159,7 +183,9 @@ class Watch:
         """The frame to render: the newest one every session has answered (so the boxes are
         that frame's), else, for a stream without answers, the newest one. A session whose
         last answer is older than every frame kept (it lags far behind, or ended unseen) does
-        not hold the picture back."""
+        not hold the picture back. The same frame again when a session went stale or came
+        back (its box is drawn differently); a stale session's last result is marked
+        ``stale`` (its notice's status and message, its own box)."""
         with self._lock:
             if not self._frames:
                 return None
@@ -167,13 +193,19 @@ class Watch:
             answered = [max(r) for r in self._by_session.values() if r and max(r) >= oldest]
             candidates = [s for s in self._frames if not answered or s <= min(answered)]
             seq = max(candidates) if candidates else next(reversed(self._frames))
-            if seq == self.rendered_seq:
+            if seq == self.rendered_seq and self._marks == self.rendered_marks:
                 return None
+            self.rendered_marks = self._marks
             results = []
             for sid, recent in self._by_session.items():
                 older = [k for k in recent if k <= seq]
                 if older:
-                    results.append((self._colours[sid], recent[max(older)]))
+                    r = recent[max(older)]
+                    notice = self._stale.get(sid)
+                    if notice is not None:
+                        r = r.model_copy(update={"status": notice.status,
+                                                 "message": notice.message})
+                    results.append((self._colours[sid], r))
             return seq, self._frames[seq], results
 
     def _render_loop(self) -> None:

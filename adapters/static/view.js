@@ -47,8 +47,11 @@ function renderTable() {
     const r = s.last;
     const name = el("td");
     name.append(el("span", "", { class: "swatch", style: "background:" + s.colour }), id.slice(0, 8));
-    const row = el("tr");
-    row.append(name, el("td", presets.get(id) || "–"), el("td", r.state || r.status),
+    // stale: the stream sent no frame for the service's stale_after_s; the box is not current
+    const stale = r.status === "stale";
+    const row = el("tr", undefined, stale ? { class: "stale", title: r.message || "" } : {});
+    row.append(name, el("td", presets.get(id) || "–"),
+      el("td", stale ? "stale: no frames" : (r.state || r.status)),
       el("td", fmt(r.confidence, 2)), el("td", fmt(r.aberrance, 4)), el("td", String(r.frame_seq)));
     body.append(row);
   }
@@ -116,8 +119,10 @@ function watch() {
     let s = sessions.get(r.session_id);
     if (!s) { s = { colour: r.colour, points: [] }; sessions.set(r.session_id, s); }
     s.last = r;
-    s.points.push({ seq: r.frame_seq, confidence: r.confidence, aberrance: r.aberrance });
-    if (s.points.length > HISTORY) s.points.shift();
+    if (r.status !== "stale") { // a notice about no frame: nothing to plot
+      s.points.push({ seq: r.frame_seq, confidence: r.confidence, aberrance: r.aberrance });
+      if (s.points.length > HISTORY) s.points.shift();
+    }
     if (r.status === "stopped") sessions.delete(r.session_id);
     lastSeq = lastSeq === null ? r.frame_seq : Math.max(lastSeq, r.frame_seq);
     document.getElementById("frame-seq").textContent = String(lastSeq);

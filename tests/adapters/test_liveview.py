@@ -1,6 +1,7 @@
 """The live view in a real headless browser (Debian's Chromium, driven by Playwright): the page
 loads from the package alone (no request leaves loopback), lists the stream, shows its video
-with the session's box drawn in the session's colour where the service put it, and updates."""
+with the session's box drawn in the session's colour where the service put it, and updates;
+a stream that stops shows its session as stale (no frames) until its frames resume."""
 
 from __future__ import annotations
 
@@ -39,7 +40,9 @@ def frames(wakeboard7):
 def test_the_page_shows_the_stream_with_its_boxes_and_updates(frames, tmp_path: Path) -> None:
     seq, data = frames
     stop = threading.Event()
-    with ServiceProcess(workers=1) as service, \
+    # the last frame's box is looked at after the stream ends: without stale notices (their
+    # own test is below), which would grey it a second later
+    with ServiceProcess("--stale-after-s", "0", workers=1) as service, \
             TrackingClient(connect=[service.endpoint], frame_congestion="block") as client:
         ack = client.start("drone-7", seq.init_box, preset="bacf", frame_seq=0)
         results = client.results("drone-7", ack.session_id)
@@ -143,3 +146,68 @@ def test_unknown_paths_and_too_many_viewers_are_refused() -> None:
         assert "<script src=\"/view.js\">" in page and "http" not in page.split("<body>")[1]
     finally:
         view.close()
+
+
+def test_a_stream_that_stops_shows_its_session_stale_until_frames_resume(frames) -> None:
+    seq, data = frames
+    with ServiceProcess(workers=1) as service, \
+            TrackingClient(connect=[service.endpoint], frame_congestion="block") as client:
+        view = LiveView(client, "127.0.0.1", 0, max_fps=5, max_width=960)
+        ack = client.start("drone-8", seq.init_box, preset="bacf", frame_seq=0)
+        results = client.results("drone-8", ack.session_id)
+
+        def answered(n: int) -> None:
+            """Frames n.. until one is answered (the view may join after the first)."""
+            deadline = time.monotonic() + 30
+            while time.monotonic() < deadline:
+                client.publish_frame("drone-8", data=data[n % len(data)], seq=n)
+                n += 1
+                try:
+                    r = results.get(timeout=0.5)
+                except Exception:  # queue.Empty: the next frame
+                    continue
+                if r.status.value != "stale" and page.evaluate(
+                        "window.arcfView.points()") > 0:
+                    return
+            raise AssertionError("no result shown")
+
+        try:
+            with sync_playwright() as p:
+                browser = p.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
+                page = browser.new_page(viewport={"width": 1300, "height": 1000})
+                page.goto(view.url + "?stream=drone-8")
+                answered(0)
+                state = "#sessions tbody tr td:nth-child(3)"
+                page.wait_for_function(  # tracking (or coasting): not stale
+                    f"document.querySelector('{state}') && "
+                    f"!document.querySelector('{state}').textContent.includes('stale')",
+                    timeout=15_000)
+                # the frames stop: the service's notice, and the view says so
+                notice = None
+                for r in results.iter(timeout=30):
+                    if r.status.value == "stale":
+                        notice = r
+                        break
+                assert notice is not None and notice.code.value == "no_frames"
+                page.wait_for_function(
+                    f"document.querySelector('{state}').textContent == 'stale: no frames'",
+                    timeout=15_000)
+                assert page.get_attribute("#sessions tbody tr", "class") == "stale"
+                watch = view.watches["drone-8"]
+                deadline = time.monotonic() + 15
+                while not (watch.drawn and watch.drawn[0].status.value == "stale"):
+                    assert time.monotonic() < deadline, "the picture was not drawn again"
+                    time.sleep(0.05)
+                assert watch.drawn[0].frame_seq == notice.frame_seq  # its last box, marked
+                # frames again: tracking results, and the row leaves "stale"
+                answered(notice.frame_seq + 1)
+                page.wait_for_function(
+                    f"!document.querySelector('{state}').textContent.includes('stale')",
+                    timeout=15_000)
+                deadline = time.monotonic() + 15
+                while not (watch.drawn and watch.drawn[0].status.value != "stale"):
+                    assert time.monotonic() < deadline, "the picture stayed stale"
+                    time.sleep(0.05)
+                browser.close()
+        finally:
+            view.close()

@@ -1,5 +1,6 @@
 """Which picture the live view renders and what it draws on it: each session's box on the
-frame the box belongs to, and a session that ended or fell far behind never freezes the view."""
+frame the box belongs to, a session that ended or fell far behind never freezes the view, and
+a session whose stream stopped is drawn again, marked stale, until frames resume."""
 
 from __future__ import annotations
 
@@ -10,9 +11,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-from adapters.liveview import Watch, colour_bgr, draw
+from adapters.liveview import STALE_BGR, Watch, colour_bgr, draw
 from adapters.tap import TapFrame
-from schemas import Result
+from schemas import Result, ResultStatus
 
 
 class _Sub:
@@ -48,6 +49,15 @@ def result(session: str, seq: int, status: str = "tracking",
                   box=list(box), peak=0.5, psr=10.0, aberrance=0.01, aberrance_release=0.01,
                   scale=1.0, status=status, dropped=0, received_ts_ns=1, decode_s=0.0,
                   track_s=0.0, published_ts_ns=1, confidence=0.9, track_state="tracking")
+
+
+def stale(session: str, seq: int) -> Result:
+    """The service's notice: no frame for stale_after_s (no box, no track state)."""
+    nan = float("nan")
+    return Result(session_id=session, stream_id="cam", frame_seq=seq, capture_ts_ns=1,
+                  box=[nan] * 4, peak=nan, psr=nan, aberrance=nan, aberrance_release=nan,
+                  scale=nan, status="stale", code="no_frames", message="no frame for 1.0 s",
+                  dropped=0, received_ts_ns=1, decode_s=0.0, track_s=0.0, published_ts_ns=1)
 
 
 @pytest.fixture
@@ -103,3 +113,39 @@ def test_boxes_are_drawn_in_the_sessions_colour_where_the_result_says() -> None:
     assert tuple(out[20, 30]) == colour_bgr(0) and tuple(out[35, 10]) == colour_bgr(0)
     assert tuple(out[50, 30]) == colour_bgr(0) and tuple(out[35, 50]) == colour_bgr(0)
     assert tuple(out[35, 30]) == (0, 0, 0)  # inside: untouched
+
+
+def test_a_stale_session_is_drawn_again_marked_until_a_frame_comes(
+    watched: tuple[Watch, Any],
+) -> None:
+    w, on_frame = watched
+    for k in range(3):
+        on_frame(frame(k))
+    w._on_result(result("a", 2))
+    w._on_result(result("b", 2))
+    seq, _, drawn = w._pick()
+    w.rendered_seq = seq  # rendered
+    assert w._pick() is None  # nothing new: no frame, no change
+    w._on_result(stale("a", 2))  # a's stream stopped: the same frame, drawn again
+    seq, _, drawn = w._pick()
+    w.rendered_seq = seq
+    by = {r.session_id: r for _, r in drawn}
+    assert seq == 2 and by["a"].status == "stale" and by["a"].box == (11, 21, 40, 30)
+    assert by["a"].message == "no frame for 1.0 s" and by["b"].status == "tracking"
+    w._on_result(stale("a", 2))  # the notice repeated: nothing to draw again
+    assert w._pick() is None
+    on_frame(frame(3))  # frames again: a's next result is about a frame, not stale
+    w._on_result(result("a", 3))
+    w._on_result(result("b", 3))
+    seq, _, drawn = w._pick()
+    assert seq == 3 and all(r.status == "tracking" for _, r in drawn)
+
+
+def test_a_stale_box_is_grey_and_thin_not_the_sessions_colour() -> None:
+    picture = np.zeros((100, 200, 3), np.uint8)
+    marked = result("a", 0, box=(11, 21, 40, 30)).model_copy(
+        update={"status": ResultStatus.STALE})
+    out = draw(picture, [(0, marked)], scale=1.0)
+    assert tuple(out[35, 10]) == STALE_BGR and tuple(out[35, 50]) == STALE_BGR  # its edges
+    assert tuple(out[35, 11]) == (0, 0, 0)  # one pixel wide
+    assert not (out == np.array(colour_bgr(0), np.uint8)).all(axis=2).any()
