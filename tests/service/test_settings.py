@@ -64,6 +64,15 @@ def test_a_bad_config_file_is_refused_with_the_reason(tmp_path: Path, text: str,
         parse(["--settings", str(tmp_path / "missing.toml")])
 
 
+def test_stale_after_s_is_off_or_above_a_frame_interval() -> None:
+    assert ServiceSettings().stale_after_s == 1.0
+    assert parse(["--stale-after-s", "0"]).stale_after_s == 0  # off
+    assert parse(["--stale-after-s", "0.25"]).stale_after_s == 0.25
+    for bad in ("0.05", "-1", "nan", "inf"):
+        with pytest.raises(ValueError, match="stale_after_s must be 0"):
+            parse(["--stale-after-s", bad])
+
+
 def test_a_bad_variable_is_refused() -> None:
     with pytest.raises(ValueError, match="setting max_pixels"):
         ServiceSettings.from_env({"ARCF_SERVICE_MAX_PIXELS": "lots"})
