@@ -169,7 +169,8 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--preset", default="arcf-hc", choices=sorted(PRESETS))
     t.add_argument(
         "--set", action="append", type=parse_override, metavar="KEY=VALUE",
-        help="override a preset parameter, e.g. --set aberrance=release --set gamma=0.5",
+        help="override a preset parameter, e.g. --set aberrance=release --set gamma=0.5; "
+        "a nested one by its dotted name, e.g. --set state.reacquire=true",
     )
     t.add_argument("-o", "--output", help="result file (default: standard output)")
     t.add_argument("--details",

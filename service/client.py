@@ -49,8 +49,8 @@ class ServiceError(RuntimeError):
     """The service answered a request with an error (``code`` says which)."""
 
     def __init__(self, error: ErrorMessage) -> None:
-        super().__init__(f"{error.code}: {error.message}")
         self.code: str = getattr(error.code, "value", str(error.code))
+        super().__init__(f"{self.code}: {error.message}")  # "invalid_parameter: ...", the wire's
         self.error = error
 
 

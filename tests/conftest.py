@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import time
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from functools import cached_property
 
 import cv2
 import numpy as np
@@ -36,6 +39,83 @@ def hidden_target_scene() -> Scene:
         return frame, (x + 1, y + 1, 36, 36)
 
     return scene
+
+
+@dataclass(frozen=True)
+class ReacquireScenario:
+    """:func:`hidden_target_scene` as a clip for the surfaces that take overrides (the CLI,
+    the service, its adapters): frame ``k`` as an image or as the JPEG bytes a station
+    sends, and the check that a session re-acquired the target where it came back."""
+
+    scene: Scene
+    #: frames 0..length-1: the target hidden for 30-39, back far away from 40 on
+    length: int = 70
+    back: int = 40
+
+    @property
+    def init_box(self) -> tuple[int, int, int, int]:
+        box = self.scene(0)[1]
+        assert box is not None
+        return box
+
+    def image(self, k: int) -> np.ndarray:
+        return self.scene(k)[0]
+
+    def target(self, k: int) -> tuple[int, int, int, int] | None:
+        return self.scene(k)[1]
+
+    @cached_property
+    def jpegs(self) -> tuple[bytes, ...]:
+        """Every frame JPEG-encoded (quality 90, the SDK's default)."""
+        return tuple(cv2.imencode(".jpg", self.image(k), [cv2.IMWRITE_JPEG_QUALITY, 90])[1]
+                     .tobytes() for k in range(self.length))
+
+    def on_target(self, k: int, box: Sequence[float]) -> bool:
+        """``box`` (1-based x, y, w, h) overlaps the target of frame ``k`` by IoU > 0.5."""
+        target = self.target(k)
+        return target is not None and iou(box, target) > 0.5
+
+    def found_back(self, boxes: Mapping[int, Sequence[float]]) -> list[int]:
+        """The frames (after the target came back) whose box is on the target's new place."""
+        return [k for k, box in sorted(boxes.items()) if k >= self.back
+                and self.on_target(k, box)]
+
+    def reacquisitions(self, results: Iterable[tuple[int, Sequence[float], bool]]
+                       ) -> list[int]:
+        """The frames where a result, ``(frame k, box, reacquired)``, says it re-acquired the
+        target and its box is on the target's new place (whichever frame that happens on)."""
+        return [k for k, box, reacquired in results
+                if reacquired and k >= self.back and self.on_target(k, box)]
+
+    def replay(self, publish: Callable[[int, bytes], object], answered: Callable[[int], bool],
+               *, start: int = 0, timeout: float = 30.0) -> None:
+        """Send frames ``start``.. in lock-step: ``publish(k, jpeg)``, then wait (at most
+        ``timeout`` seconds a frame) until ``answered(k)``, so that every frame is tracked
+        whatever the machine's speed."""
+        for k in range(start, self.length):
+            publish(k, self.jpegs[k])
+            deadline = time.monotonic() + timeout
+            while not answered(k):
+                if time.monotonic() > deadline:
+                    raise AssertionError(f"frame {k} of the scenario got no result within "
+                                         f"{timeout:g} s")
+                time.sleep(0.005)
+
+
+def iou(a: Sequence[float], b: Sequence[float]) -> float:
+    """Intersection over union of two x, y, w, h boxes."""
+    ix = max(0.0, min(a[0] + a[2], b[0] + b[2]) - max(a[0], b[0]))
+    iy = max(0.0, min(a[1] + a[3], b[1] + b[3]) - max(a[1], b[1]))
+    inter = ix * iy
+    union = a[2] * a[3] + b[2] * b[3] - inter
+    return inter / union if union > 0 else 0.0
+
+
+@pytest.fixture(scope="session")
+def reacquire_scenario(hidden_target_scene: Scene) -> ReacquireScenario:
+    """The hidden target scene (found again by every preset with ``state.reacquire`` on, never
+    without it: tests/arcf/test_reacquire.py) as a clip with its re-acquisition check."""
+    return ReacquireScenario(hidden_target_scene)
 
 
 @pytest.fixture(scope="session")

@@ -173,7 +173,8 @@ def add_parser(sub: argparse._SubParsersAction, parse_override: Any) -> None:  #
                         "ground-truth box, never re-initialise. A process per sequence.")
     r.add_argument("--preset", default="arcf-hc", choices=sorted(PRESETS))
     r.add_argument("--set", action="append", type=parse_override, metavar="KEY=VALUE",
-                   help="override a parameter, e.g. --set aberrance=release")
+                   help="override a parameter, e.g. --set aberrance=release or "
+                   "--set state.reacquire=true")
     r.add_argument("--label", help="results folder name (default: preset + overrides)")
     r.add_argument("--dataset", nargs="+", default=list(DATASETS),
                    help="dataset names (uav123_10fps, dtb70, uavdt) or dataset folders")
