@@ -381,6 +381,8 @@ class ARCFTracker:
         if not state.templates:
             return None
         places = [c for _, c in state.templates[0].candidates(image, policy.probes)]
+        if state.tracked is not None:  # a target hidden where it stood comes back there
+            places.append(state.tracked[0])
         if state.candidate is not None:
             places.append(state.candidate)
         best: tuple[float, float, tuple[float, float], np.ndarray] | None = None

@@ -1,34 +1,37 @@
-"""Calibrate and score the track state (``arcf.state``): when does the tracker know it failed?
+"""Does the tracker say the truth about itself? The track-state goals, measured.
 
-1. **Our runs.** Every preset on every shared sequence, with the per-frame signals the
-   tracker reports (peak, PSR, release aberrance), each frame labelled from the ground truth:
-   failure (IoU = 0, or no visible target), good tracking (IoU > 0.5) or neither
-   (``arcf.eval.failure``).
-2. **The confidence model.** A logistic regression of "the box overlaps the target" on the
-   monitor's features (``arcf.state.FEATURES``, computed by the very code the tracker runs),
-   fitted leave-one-sequence-out: each sequence is scored by a model that never saw it. The
-   pooled out-of-fold confidences give the precision-recall curve of flagging
-   ``confidence < t``, and the state machine is scored at the operating point.
-3. **The published data.** The authors' per-frame map differences for ARCF-H and BACF on all
-   123 UAV123@10fps sequences: what the aberrance alone (the one signal published there) tells,
-   fitted on half the sequences and scored on the other half.
-4. The model fitted on all our runs: the values for ``StateParams`` (printed as Python).
+Every preset, as shipped (or with ``--set`` overrides), runs the 9 shared sequences and the 3
+real full-occlusion clips of ``data/occlusions``. Per frame: its box against the ground truth,
+its state and confidence. Printed as Markdown (docs/track-state.md):
 
-    python benchmarks/track_state.py                 # ~2 min on 2 cores
-    python benchmarks/track_state.py --presets arcf-h --no-published
+1. **Real losses flagged**: per occlusion episode (a run of 3 or more frames without a visible
+   target), does the state leave ``tracking`` by the 3rd frame after the first hidden frame?
+2. **Found again**: within 10 frames after the target is visible again, a frame ``tracking``
+   with IoU > 0.5; and no frame claims ``tracking`` while the target is hidden, once flagged.
+3. **No crying wolf**: frames not ``tracking`` per 1,000 frames whose box has IoU > 0.5.
+4. **Nothing lost elsewhere**: P@20 / AUC (toolkit convention) on the 9 shared sequences, next
+   to the same preset with ``state.reacquire`` off (the paper's tracker: its boxes).
+6. **Confidence**: a reliability table (confidence bins against the fraction of frames whose box
+   overlaps the target) and the expected calibration error; ``--fit`` also fits the confidence
+   model (``StateParams.weights``/``bias``) on these runs, per preset, and prints its
+   leave-one-sequence-out calibration error.
+
+    python benchmarks/track_state.py                     # ~3 min on 2 cores
+    python benchmarks/track_state.py --presets arcf-h --set state.resume_above=0.5
+    python benchmarks/track_state.py --fit
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import platform
 import sys
 import time
-import zlib
-from collections.abc import Iterable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
@@ -37,249 +40,267 @@ from scipy.optimize import minimize
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from arcf.cli import parse_override
 from arcf.data import data_root
-from arcf.eval.failure import (
-    DEFAULT_DELAY,
-    FailureScore,
-    failure_frames,
-    pool,
-    score_flags,
-)
-from arcf.state import FEATURES, StateParams, TrackMonitor, TrackState
+from arcf.eval.failure import episodes
+from arcf.eval.metrics import overlaps, score_sequence
 
 PRESETS = ("arcf-hc", "arcf-h", "bacf")
 DATASETS = ("uav123_10fps", "dtb70", "uavdt")
-#: the operating point's bound on false alarms (issue 16): flagged good frames per 1,000
-MAX_FALSE_ALARMS = 2.0
+CLIPS = ("car14", "person12_2", "group2_1")
+#: goal 1: frames after the first hidden one by which the state must have left tracking
+FLAG_WITHIN = 3
+#: goal 2: frames after the target is visible again within which it must be tracked again
+FOUND_WITHIN = 10
+#: an occlusion episode: at least this many frames in a row without a visible target
+MIN_EPISODE = 3
+STATE_CODES = {"tracking": 0, "coasting": 1, "lost": 2}
 
 
 @dataclass
-class Track:
-    """One sequence tracked by one preset: signals and labels per frame (frame 0 excluded:
-    its box is the given one)."""
+class Run:
+    """One sequence tracked by one preset. Arrays have one row per frame (frame 0: the box
+    given)."""
 
     preset: str
     sequence: str
-    signals: np.ndarray  #: (N, 3) peak, psr, aberrance_release
-    failure: np.ndarray  #: (N,) bool
-    good: np.ndarray  #: (N,) bool
+    clip: bool
+    boxes: np.ndarray  #: (N, 4)
+    groundtruth: np.ndarray  #: (N, 4), NaN rows where no target is visible
+    state: np.ndarray  #: (N,) STATE_CODES
+    confidence: np.ndarray  #: (N,)
+    features: np.ndarray  #: (N, 4) the confidence model's features (NaN on frame 0)
+    reacquired: np.ndarray  #: (N,) bool
+    seconds: np.ndarray  #: (N,) tracker time
 
-    def features(self) -> np.ndarray:
-        monitor = TrackMonitor(StateParams())
-        monitor.reset()
-        return np.array([monitor.features(*row) for row in self.signals])
+    @property
+    def hidden(self) -> np.ndarray:
+        return ~np.all(np.isfinite(self.groundtruth), axis=1)
+
+    @property
+    def iou(self) -> np.ndarray:
+        gt = np.where(self.hidden[:, None], 1.0, self.groundtruth)
+        iou = np.nan_to_num(overlaps(self.boxes, gt), nan=0.0)
+        iou[self.hidden] = 0.0
+        return iou
 
 
-def run_track(preset: str, dataset: str, name: str) -> Track:
+def _sequence(kind: str, name: str) -> Any:
+    from arcf.eval import load_dataset
+    from arcf.eval.datasets import load_sequence
+
+    if kind == "clip":
+        folder = data_root() / "occlusions" / name
+        return load_sequence(folder / "img", folder / "groundtruth.txt", name)
+    (seq,) = load_dataset(kind, sequences=[name])
+    return seq
+
+
+def run(preset: str, kind: str, name: str, overrides: dict[str, Any]) -> Run:
     import cv2
 
     import arcf
+
+    seq = _sequence(kind, name)
+    tracker = arcf.create_tracker(preset, **overrides)
+    features: list[tuple[float, ...]] = [(np.nan,) * 4]
+    observe = tracker._monitor.observe
+
+    def recording(*args: float) -> Any:  # the features the confidence was computed from
+        verdict = observe(*args)
+        features.append(verdict.features)
+        return verdict
+
+    tracker._monitor.observe = recording  # type: ignore[method-assign]
+    boxes, state, conf, reacq, secs = [], [], [], [], []
+    for i, path in enumerate(seq.frames):
+        frame = cv2.imread(str(path), cv2.IMREAD_COLOR)
+        t0 = time.perf_counter()
+        r = tracker.init(frame, seq.init_box) if i == 0 else tracker.update(frame)
+        secs.append(time.perf_counter() - t0)
+        boxes.append(r.box)
+        state.append(STATE_CODES[r.state.value])
+        conf.append(r.confidence)
+        reacq.append(r.reacquired)
+    return Run(preset, name, kind == "clip", np.array(boxes, float), seq.groundtruth,
+               np.array(state), np.array(conf), np.array(features, float), np.array(reacq),
+               np.array(secs))
+
+
+def all_runs(presets: list[str], overrides: dict[str, Any], jobs: int) -> list[Run]:
     from arcf.eval import load_dataset
-    from arcf.run import run_sequence
 
-    (seq,) = load_dataset(dataset, sequences=[name])
-    frames = (cv2.imread(str(p), cv2.IMREAD_COLOR) for p in seq.frames)
-    run = run_sequence(arcf.create_tracker(preset), frames, seq.init_box)
-    failure, good = failure_frames(run.boxes, seq.groundtruth)
-    signals = np.array([(r.peak, r.psr, r.aberrance_release) for r in run.results[1:]])
-    return Track(preset, name, signals, failure[1:], good[1:])
-
-
-def our_tracks(presets: Sequence[str], jobs: int) -> list[Track]:
-    from arcf.eval import load_dataset
-
-    todo = [(p, ds, s.name) for ds in DATASETS if (data_root() / ds).is_dir()
-            for s in load_dataset(ds) for p in presets]
-    with ProcessPoolExecutor(jobs) as pool_:
-        return list(pool_.map(run_track, *zip(*todo, strict=True)))
+    todo = [(p, ds, s.name) for p in presets for ds in DATASETS
+            if (data_root() / ds).is_dir() for s in load_dataset(ds)]
+    todo += [(p, "clip", c) for p in presets for c in CLIPS
+             if (data_root() / "occlusions" / c).is_dir()]
+    with ProcessPoolExecutor(jobs) as pool:
+        return list(pool.map(run, *zip(*todo, strict=True),
+                             [overrides] * len(todo)))
 
 
-# ------------------------------------------------------------------------- the logistic model
-def fit_logistic(x: np.ndarray, y: np.ndarray, l2: float = 1e-2) -> tuple[np.ndarray, float]:
-    """Weights and bias maximising the log-likelihood of ``y`` (1: overlaps) given ``x``, with
-    a small L2 penalty on the weights (not the bias); classes weighed equally, so that the
-    rarer failures count as much as the many good frames."""
+# ------------------------------------------------------------------------------ the goals
+@dataclass
+class Episode:
+    sequence: str
+    start: int
+    stop: int  #: exclusive: the first frame with the target visible again (or the end)
+    flagged: bool
+    found: bool
+    #: frames claimed ``tracking`` while the target was hidden, after the first flag
+    false_claims: int
+
+
+def occlusion_episodes(r: Run) -> list[Episode]:
+    out = []
+    for start, stop in episodes(r.hidden):
+        if stop - start < MIN_EPISODE:
+            continue
+        flagged = bool((r.state[start:start + FLAG_WITHIN + 1] != 0).any())
+        flags = np.flatnonzero(r.state[start:stop] != 0)
+        claims = int((r.state[start + flags[0]:stop] == 0).sum()) if flags.size else 0
+        after = slice(stop, min(stop + FOUND_WITHIN, len(r.state)))
+        found = bool(((r.state[after] == 0) & (r.iou[after] > 0.5)).any())
+        out.append(Episode(r.sequence, start, stop, flagged, found, claims))
+    return out
+
+
+def false_alarms(runs: list[Run]) -> tuple[int, int]:
+    """(frames not tracking among those with IoU > 0.5, frames with IoU > 0.5), frame 0 out."""
+    good = [r.iou[1:] > 0.5 for r in runs]
+    return (sum(int((r.state[1:][g] != 0).sum()) for r, g in zip(runs, good, strict=True)),
+            sum(int(g.sum()) for g in good))
+
+
+def reliability(conf: np.ndarray, hit: np.ndarray, bins: int = 10) -> tuple[list[str], float]:
+    """Markdown rows of the reliability table and the expected calibration error (bins of
+    equal width; the error weighs each bin by its share of frames)."""
+    rows, ece = [], 0.0
+    edges = np.linspace(0, 1, bins + 1)
+    for k in range(bins):
+        lo, hi = edges[k], edges[k + 1]
+        m = (conf >= lo) & ((conf < hi) if k < bins - 1 else (conf <= hi))
+        if not m.any():
+            rows.append(f"| {lo:.1f}–{hi:.1f} | 0 | – | – |")
+            continue
+        ece += m.mean() * abs(conf[m].mean() - hit[m].mean())
+        rows.append(f"| {lo:.1f}–{hi:.1f} | {int(m.sum())} | {conf[m].mean():.3f} | "
+                    f"{hit[m].mean():.3f} |")
+    return rows, float(ece)
+
+
+def _confidences(runs: list[Run]) -> tuple[np.ndarray, np.ndarray]:
+    conf = np.concatenate([r.confidence[1:] for r in runs])
+    hit = np.concatenate([r.iou[1:] > 0 for r in runs])
+    return conf, hit
+
+
+# ------------------------------------------------------------------------------ fitting
+def fit_logistic(x: np.ndarray, y: np.ndarray, l2: float = 1e-3) -> tuple[np.ndarray, float]:
+    """Weights and bias of the maximum-likelihood logistic model (a small L2 penalty on the
+    weights), every frame weighing the same: a calibrated probability, not a balanced
+    classifier."""
     xb = np.hstack([x, np.ones((len(x), 1))])
-    pos = max(int(y.sum()), 1)
-    neg = max(len(y) - pos, 1)
-    sample_w = np.where(y == 1, 0.5 / pos, 0.5 / neg)
 
     def loss(theta: np.ndarray) -> tuple[float, np.ndarray]:
         z = xb @ theta
-        # log(1 + e^{-z}) for positives, log(1 + e^{z}) for negatives, stably
         ll = np.where(y == 1, np.logaddexp(0, -z), np.logaddexp(0, z))
         p = 1.0 / (1.0 + np.exp(-z))
-        grad = xb.T @ (sample_w * (p - y))
         reg = np.r_[theta[:-1], 0.0]
-        return float(sample_w @ ll + 0.5 * l2 * reg @ reg), grad + l2 * reg
+        return float(ll.mean() + 0.5 * l2 * reg @ reg), xb.T @ (p - y) / len(y) + l2 * reg
 
-    res = minimize(loss, np.zeros(xb.shape[1]), jac=True, method="L-BFGS-B")
-    return res.x[:-1], float(res.x[-1])
-
-
-def confidence(x: np.ndarray, w: np.ndarray, b: float) -> np.ndarray:
-    return 1.0 / (1.0 + np.exp(-(x @ w + b)))
+    theta = minimize(loss, np.zeros(xb.shape[1]), jac=True, method="L-BFGS-B").x
+    return theta[:-1], float(theta[-1])
 
 
-def out_of_fold(tracks: list[Track]) -> list[np.ndarray]:
-    """Each track's confidences from a model fitted without its sequence (any preset)."""
-    feats = [t.features() for t in tracks]
-    out = []
-    for t, f in zip(tracks, feats, strict=True):
-        train = [i for i, u in enumerate(tracks) if u.sequence != t.sequence]
-        x = np.vstack([feats[i] for i in train])
-        y = np.concatenate([~tracks[i].failure for i in train]).astype(float)
-        w, b = fit_logistic(x, y)
-        out.append(confidence(f, w, b))
-    return out
-
-
-def machine_flags(conf: np.ndarray, params: StateParams) -> np.ndarray:
-    """The tracker's state machine driven by given confidences: True where not tracking."""
-    monitor = TrackMonitor(params)
-    monitor.reset()
-    return np.array([monitor.step(float(c)) is not TrackState.TRACKING for c in conf])
-
-
-def score_threshold(tracks: list[Track], confs: list[np.ndarray], t: float) -> FailureScore:
-    return pool(score_flags(c < t, tr.failure, tr.good) for tr, c in zip(tracks, confs,
-                                                                           strict=True))
-
-
-def curve_table(tracks: list[Track], confs: list[np.ndarray],
-                thresholds: Iterable[float]) -> list[str]:
-    rows = ["| flag when confidence < | recall within 3 frames | precision | "
-            "false alarms / 1,000 good frames | episodes flagged | median delay, frames |",
-            "| --- | --- | --- | --- | --- | --- |"]
-    for t in thresholds:
-        s = score_threshold(tracks, confs, t)
-        rows.append(f"| {t:.2f} | {s.recall_at:.3f} | {s.precision:.3f} | "
-                    f"{s.false_alarms_per_1000:.1f} | {s.episodes - s.missed_episodes}/"
-                    f"{s.episodes} | {s.median_delay:.0f} |")
-    return rows
-
-
-def operating_point(tracks: list[Track], confs: list[np.ndarray]) -> float:
-    """The highest threshold whose false alarms stay within the bound."""
-    best = 0.0
-    for t in np.linspace(0.01, 0.99, 99):
-        if score_threshold(tracks, confs, float(t)).false_alarms_per_1000 <= MAX_FALSE_ALARMS:
-            best = float(t)
-    return best
-
-
-# ------------------------------------------------------------------------- published data
-def _rows(path: Path) -> np.ndarray:
-    text = path.read_text().replace("\t", ",").replace(" ", ",")
-    return np.array([[float(v) for v in line.split(",") if v] for line in text.splitlines()
-                     if line.strip()])
-
-
-def published(tracker: str) -> list[Track]:
-    root = data_root() / "published_results" / "UAV123_10fps"
-    out = []
-    for md_path in sorted((root / tracker).glob("*_map_diff.txt")):
-        name = md_path.name.removesuffix("_map_diff.txt")
-        md = _rows(md_path)[:, 0]
-        boxes = _rows(root / tracker / f"{name}.txt")
-        gt = _rows(root / "groundtruth" / f"{name}.txt")
-        n = min(len(md), len(boxes), len(gt))
-        failure, good = failure_frames(boxes[:n], gt[:n])
-        # only the aberrance is published: peak and PSR stand in as 1 (features 0)
-        signals = np.column_stack([np.full(n, np.e), np.ones(n), md[:n]])[1:]
-        out.append(Track(tracker, name, signals, failure[1:n], good[1:n]))
-    return out
-
-
-def auc(pos: np.ndarray, neg: np.ndarray) -> float:
-    """The probability that a random ``pos`` value exceeds a random ``neg`` one (ties half)."""
-    from scipy.stats import rankdata
-
-    ranks = rankdata(np.concatenate([pos, neg]))
-    return float((ranks[:len(pos)].sum() - len(pos) * (len(pos) + 1) / 2)
-                 / (len(pos) * len(neg)))
-
-
-def published_report(tracker: str) -> list[str]:
-    tracks = published(tracker)
-    md = np.concatenate([t.signals[:, 2] for t in tracks])
-    fail = np.concatenate([t.failure for t in tracks])
-    good = np.concatenate([t.good for t in tracks])
-    onset = np.concatenate([t.failure & ~np.r_[False, t.failure[:-1]] for t in tracks])
-    half = [zlib.crc32(t.sequence.encode()) % 2 == 0 for t in tracks]
-    fit = [t for t, h in zip(tracks, half, strict=True) if h]
-    held = [t for t, h in zip(tracks, half, strict=True) if not h]
-    x = np.vstack([t.features()[:, 2:] for t in fit])
-    y = np.concatenate([~t.failure for t in fit]).astype(float)
-    w, b = fit_logistic(x, y)
-    confs = [confidence(t.features()[:, 2:], w, b) for t in held]
-    frames = sum(len(t.failure) for t in held)
-    lines = [f"**{tracker}**, aberrance only: fitted on {len(fit)} sequences, scored on the "
-             f"other {len(held)} ({frames} frames, {sum(int(t.failure.sum()) for t in held)} "
-             f"failure frames); weight {w[0]:+.3f}, bias {b:+.3f}. The map difference is "
-             f"higher on failure frames than on good ones with probability "
-             f"{auc(md[fail], md[good]):.2f} (AUC, all 123 sequences), on the onset frames of "
-             f"failures {auc(md[onset], md[good]):.2f}.", ""]
-    lines += curve_table(held, confs, (0.3, 0.4, 0.45, 0.5, 0.55, 0.6))
-    t = operating_point(held, confs)
-    s = score_threshold(held, confs, t)
-    lines += ["", f"At {MAX_FALSE_ALARMS:g} false alarms per 1,000 good frames (confidence < "
-              f"{t:.2f}): recall {s.recall_at:.3f}, precision {s.precision:.3f}."]
+def fit(runs: list[Run]) -> list[str]:
+    """Per preset: the confidence model fitted on all its runs, and the calibration error of
+    models fitted without each sequence (leave-one-sequence-out)."""
+    lines = []
+    for preset in sorted({r.preset for r in runs}):
+        mine = [r for r in runs if r.preset == preset]
+        xs = [r.features[1:] for r in mine]
+        ys = [(r.iou[1:] > 0).astype(float) for r in mine]
+        ok = [np.all(np.isfinite(x), axis=1) for x in xs]
+        w, b = fit_logistic(np.vstack([x[k] for x, k in zip(xs, ok, strict=True)]),
+                            np.concatenate([y[k] for y, k in zip(ys, ok, strict=True)]))
+        oof_c, oof_y = [], []
+        for i in range(len(mine)):
+            rest = [j for j in range(len(mine)) if j != i]
+            wi, bi = fit_logistic(np.vstack([xs[j][ok[j]] for j in rest]),
+                                  np.concatenate([ys[j][ok[j]] for j in rest]))
+            oof_c.append(1.0 / (1.0 + np.exp(-(xs[i][ok[i]] @ wi + bi))))
+            oof_y.append(ys[i][ok[i]])
+        _, ece = reliability(np.concatenate(oof_c), np.concatenate(oof_y).astype(bool))
+        lines.append(f"- `{preset}`: weights=({', '.join(f'{v:.4f}' for v in w)}), "
+                     f"bias={b:.4f}; leave-one-sequence-out ECE {ece:.3f}")
     return lines
+
+
+# ------------------------------------------------------------------------------ report
+def _cpu() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+def report(runs: list[Run], plain: list[Run], args: argparse.Namespace) -> None:
+    print(f"`python benchmarks/track_state.py {' '.join(sys.argv[1:])}`".replace(" `", "`"))
+    print(f"{time.strftime('%Y-%m-%d')}, {_cpu()}, "
+          f"nproc {os.cpu_count()}; overrides {args.set or 'none (the presets as shipped)'}\n")
+    print("| preset | 1. losses flagged within 3 frames | 2. found again within 10 frames "
+          "| hidden frames claimed tracking | 3. not tracking per 1,000 good frames | "
+          "4. P@20 / AUC (reacquire off) | 6. ECE | ms / frame (median) |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- |")
+    for preset in args.presets:
+        mine = [r for r in runs if r.preset == preset]
+        eps = [e for r in mine for e in occlusion_episodes(r)]
+        fa, good = false_alarms(mine)
+        nine = [r for r in mine if not r.clip]
+        base = [r for r in plain if r.preset == preset and not r.clip]
+        p, a = (np.mean([score_sequence(r.boxes, r.groundtruth).precision20 for r in nine]),
+                np.mean([score_sequence(r.boxes, r.groundtruth).auc for r in nine]))
+        pb, ab = (np.mean([score_sequence(r.boxes, r.groundtruth).precision20 for r in base]),
+                  np.mean([score_sequence(r.boxes, r.groundtruth).auc for r in base]))
+        _, ece = reliability(*_confidences(mine))
+        ms = 1000 * np.median(np.concatenate([r.seconds[1:] for r in mine]))
+        print(f"| `{preset}` | {sum(e.flagged for e in eps)}/{len(eps)} "
+              f"({', '.join(e.sequence + ('' if e.flagged else ' ✗') for e in eps)}) | "
+              f"{sum(e.found for e in eps)}/{len(eps)} "
+              f"({', '.join(e.sequence + ('' if e.found else ' ✗') for e in eps)}) | "
+              f"{sum(e.false_claims for e in eps)} | {1000 * fa / max(good, 1):.1f} "
+              f"({fa}/{good}) | {p:.3f} / {a:.3f} ({pb:.3f} / {ab:.3f}) | {ece:.3f} | "
+              f"{ms:.1f} |")
+    print("\nReliability (all presets pooled; a frame counts as a hit when its box overlaps "
+          "the target, IoU > 0):\n")
+    rows, ece = reliability(*_confidences(runs))
+    print("| confidence | frames | mean confidence | fraction with IoU > 0 |")
+    print("| --- | ---: | ---: | ---: |")
+    print("\n".join(rows))
+    print(f"\nExpected calibration error, pooled: {ece:.3f}")
+    if args.fit:
+        print("\nConfidence model fitted on these runs:\n")
+        print("\n".join(fit(runs)))
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--presets", nargs="+", default=list(PRESETS))
-    ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
-    ap.add_argument("--no-published", action="store_true")
+    ap.add_argument("--presets", type=lambda s: s.split(","), default=list(PRESETS))
+    ap.add_argument("--set", action="append", type=parse_override, metavar="KEY=VALUE",
+                    help="override a parameter of every preset, e.g. --set state.probes=3")
+    ap.add_argument("--fit", action="store_true", help="fit the confidence model too")
+    ap.add_argument("--jobs", type=int, default=2)
     args = ap.parse_args(argv)
-
-    t0 = time.monotonic()
-    tracks = our_tracks(args.presets, args.jobs)
-    frames = sum(len(t.failure) for t in tracks)
-    print(f"## Our runs: {len(tracks)} tracks ({', '.join(args.presets)} on "
-          f"{len({t.sequence for t in tracks})} sequences), {frames} frames, "
-          f"{sum(int(t.failure.sum()) for t in tracks)} failure frames, "
-          f"{sum(int(t.good.sum()) for t in tracks)} good\n")
-    confs = out_of_fold(tracks)
-    print("Leave-one-sequence-out confidences, flagged when below the threshold "
-          f"(recall: failure frames flagged within {DEFAULT_DELAY} frames):\n")
-    print("\n".join(curve_table(tracks, confs, (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8))))
-    t = operating_point(tracks, confs)
-    s = score_threshold(tracks, confs, t)
-    print(f"\nAt {MAX_FALSE_ALARMS:g} false alarms per 1,000 good frames: confidence < {t:.2f},"
-          f" recall {s.recall_at:.3f}, precision {s.precision:.3f}, "
-          f"{s.episodes - s.missed_episodes}/{s.episodes} episodes flagged.")
-    print("\nPer preset at that point:\n")
-    for preset in args.presets:
-        mine = [(tr, c) for tr, c in zip(tracks, confs, strict=True) if tr.preset == preset]
-        ps = score_threshold([m[0] for m in mine], [m[1] for m in mine], t)
-        print(f"- {preset}: recall {ps.recall_at:.3f}, precision {ps.precision:.3f}, "
-              f"{ps.false_alarms_per_1000:.1f} false alarms / 1,000, "
-              f"{ps.episodes - ps.missed_episodes}/{ps.episodes} episodes")
-    params = StateParams()
-    machine = pool(score_flags(machine_flags(c, params), tr.failure, tr.good)
-                   for tr, c in zip(tracks, confs, strict=True))
-    print(f"\nState machine (coast < {params.coast_below}, lost < {params.lost_below} or after "
-          f"{params.lost_after} frames, resume >= {params.resume_above}): recall "
-          f"{machine.recall_at:.3f}, precision {machine.precision:.3f}, "
-          f"{machine.false_alarms_per_1000:.1f} false alarms / 1,000 good frames.")
-
-    x = np.vstack([tr.features() for tr in tracks])
-    y = np.concatenate([~tr.failure for tr in tracks]).astype(float)
-    w, b = fit_logistic(x, y)
-    print("\nFitted on all our runs (for StateParams):\n")
-    print(f"    weights=({', '.join(f'{v:.4f}' for v in w)}),  # {', '.join(FEATURES)}")
-    print(f"    bias={b:.4f},")
-
-    if not args.no_published:
-        print("\n## Published map differences (UAV123@10fps, 123 sequences)\n")
-        for tracker in ("ARCF-H", "BACF"):
-            print("\n".join(published_report(tracker)) + "\n")
-    print(f"({time.monotonic() - t0:.0f} s; nproc {os.cpu_count()})")
+    overrides = dict(args.set or [])
+    runs = all_runs(args.presets, overrides, args.jobs)
+    plain = all_runs(args.presets, {**overrides, "state.reacquire": False}, args.jobs)
+    report(runs, plain, args)
     return 0
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    raise SystemExit(main())

@@ -1,6 +1,6 @@
-"""Re-acquisition: the probe schedule, and a lost track finding its target again on a real
-background, at a bounded number of windows per frame, without changing a track that was never
-lost."""
+"""Re-acquisition: the template's proposals over the whole frame, and a lost track finding its
+target again on a real background, at a bounded number of windows per frame, without changing
+a track that was never lost."""
 
 from __future__ import annotations
 
@@ -9,13 +9,12 @@ from collections.abc import Callable
 from typing import Any
 
 import cv2
-import numpy as np
 import pytest
 
 import arcf
 from arcf.data import data_root
 from arcf.errors import InvalidParameterError
-from arcf.reacquire import Search
+from arcf.reacquire import TargetTemplate
 from arcf.state import StateParams, TrackState
 from arcf.tracker import ARCFTracker
 
@@ -31,25 +30,21 @@ def test_parameters_are_checked() -> None:
     assert arcf.create_tracker("bacf", state={"reacquire": True}).params.state.reacquire
 
 
-def test_search_starts_where_the_target_was_and_grows_to_the_whole_frame() -> None:
-    search = Search(centre=(100.0, 200.0), window=80.0, image_hw=(360, 640), probes=3,
-                    growth=0.5)
-    # every place of the frame lies within half a pitch of some probe centre
-    centres = [p for _, p in search._points]
-    assert all(1 <= r <= 360 and 1 <= c <= 640 for r, c in centres)
-    grid = np.stack(np.meshgrid(np.arange(1, 361, 7), np.arange(1, 641, 7)), -1).reshape(-1, 2)
-    nearest = np.min(np.linalg.norm(grid[:, None] - np.array(centres)[None], axis=2), axis=1)
-    assert nearest.max() <= math.hypot(20, 20) + 1e-6  # pitch 40: half a diagonal
-    first = search.next_probes()
-    assert first[0] == (100.0, 200.0) and len(first) == 3  # where it vanished, first
-    seen: set[tuple[float, float]] = set(first)
-    for _ in range(search.candidates):
-        probes = search.next_probes()
-        assert len(probes) <= 3
-        # only within the disc of the current frame
-        assert all(math.dist(p, (100.0, 200.0)) <= search.radius_px() + 1e-6 for p in probes)
-        seen.update(probes)
-    assert len(seen) == search.candidates  # the whole frame, eventually
+def test_the_template_proposes_the_target_anywhere_in_the_frame(
+        hidden_target_scene: Callable[[int], Any]) -> None:
+    frame, box = hidden_target_scene(0)
+    x, y, w, h = box
+    template = TargetTemplate.cut(frame, (y + (h - 1) / 2, x + (w - 1) / 2), (h, w))
+    assert template.shrink == pytest.approx(36 / 12) and template.pixels.shape == (12, 12)
+    later, (x2, y2, w2, h2) = hidden_target_scene(45)  # back, far from where it was
+    proposals = template.candidates(later, 3)
+    assert len(proposals) == 3 and proposals[0][0] >= proposals[1][0] >= proposals[2][0]
+    _, (row, col) = proposals[0]
+    assert math.dist((row, col), (y2 + (h2 - 1) / 2, x2 + (w2 - 1) / 2)) <= 36 / 4
+    # apart from each other: no two proposals on the same place
+    centres = [c for _, c in proposals]
+    assert min(math.dist(a, b) for i, a in enumerate(centres) for b in centres[i + 1:]) >= 12
+    assert template.candidates(later[:5, :5], 3) == []  # a frame smaller than the template
 
 
 def _iou(a: tuple[float, ...], b: tuple[float, ...]) -> float:
@@ -84,8 +79,8 @@ def test_a_lost_target_is_found_again_far_from_where_it_vanished(
     plain, found = runs[False], runs[True]
     target = hidden_target_scene(69)[1]
     assert target is not None
-    # the plain tracker loses it for good, and says so
-    assert plain[-1].state is TrackState.LOST and _iou(plain[-1].box, target) == 0
+    # the plain tracker loses it for good
+    assert _iou(plain[-1].box, target) == 0
     # with re-acquisition: lost while hidden, found once back, tracking it at the end
     assert any(r.state is TrackState.LOST for r in found[29:39])
     events = [k for k, r in enumerate(found, start=1) if r.reacquired]
@@ -93,8 +88,9 @@ def test_a_lost_target_is_found_again_far_from_where_it_vanished(
     assert found[events[0] - 1].state is TrackState.TRACKING
     assert all(_iou(r.box, hidden_target_scene(k)[1]) > 0.5  # type: ignore[arg-type]
                for k, r in enumerate(found, start=1) if k >= events[0])
-    # a bounded number of windows per frame: probes + 1 (the refinement), only while lost
-    assert max(probes) <= StateParams().probes + 1
+    # a bounded number of windows per frame: the proposals, where the target was last
+    # tracked, the place seen on the frame before and the refinement; only while lost
+    assert max(probes) <= StateParams().probes + 3
     assert all(n == 0 for n, r in zip(probes[len(plain):], found, strict=True)
                if r.state is not TrackState.LOST and not r.reacquired)
     # identical to the plain tracker until the target vanished

@@ -1,5 +1,6 @@
-"""The track state: features against the track's own start, the confidence, the state machine
-with its hysteresis, and the update policy that stops learning from a lost target."""
+"""The track state: strength against the track's recent trusted frames, the confidence, the
+state machine with its hysteresis, and the update policies that stop learning from a lost
+target."""
 
 from __future__ import annotations
 
@@ -23,21 +24,29 @@ def test_parameters_are_checked() -> None:
         StateParams(update_policy="sometimes")  # type: ignore[arg-type]
     assert make_params("arcf-h", state={"update_policy": "tracking"}).state.update_policy == \
         "tracking"
+    assert make_params("arcf-h", **{"state.lost_after": 7}).state.lost_after == 7
     with pytest.raises(arcf.UnknownPresetError, match="unknown state parameter"):
         make_params("arcf-h", state={"threshold": 1})
 
 
-def test_features_read_peak_and_aberrance_against_the_tracks_start() -> None:
-    monitor = TrackMonitor(StateParams(reference_frames=3))
+def test_strength_reads_psr_and_peak_against_the_recent_trusted_frames() -> None:
+    monitor = TrackMonitor(StateParams(reference_frames=4))
     assert monitor.reset().state is TrackState.TRACKING
-    for _ in range(3):  # the references: median of the first three frames
-        f = monitor.features(peak=0.02, psr=8.0, aberrance=0.01)
-        assert f == pytest.approx((math.log(8.0), 0.0, 0.0), abs=1e-4)
-    f = monitor.features(peak=0.005, psr=8.0, aberrance=0.04)  # not a reference any more
-    assert f[1] == pytest.approx(math.log(0.25), abs=1e-3)
-    assert f[2] == pytest.approx(math.log(4.0), abs=1e-3)
+    for psr, peak in ((8.0, 0.02), (10.0, 0.03), (9.0, 0.025)):  # the first frames: references
+        monitor.observe(peak=peak, psr=psr, aberrance=0.01)
+    assert monitor.references()[:2] == pytest.approx((9.0, 0.025))
+    # a frame at half the usual PSR and peak: a quarter of the strength, coasting
+    verdict = monitor.observe(peak=0.0125, psr=4.5, aberrance=0.01)
+    assert verdict.strength == pytest.approx(0.25, rel=1e-3)
+    assert verdict.state is TrackState.COASTING
+    assert monitor.references()[:2] == pytest.approx((9.0, 0.025))  # not a reference
+    # a strong frame again: tracking, and one of the references, which keep the newest only
+    for _ in range(4):
+        assert monitor.observe(peak=0.04, psr=12.0, aberrance=0.01).state is \
+            TrackState.TRACKING
+    assert monitor.references()[:2] == pytest.approx((12.0, 0.04))
     monitor.reset()  # a new box: new references
-    assert monitor.features(peak=0.005, psr=8.0, aberrance=0.04)[1:] == pytest.approx((0, 0))
+    assert monitor.observe(peak=0.001, psr=2.0, aberrance=0.04).strength == pytest.approx(1.0)
 
 
 def test_the_state_machine_coasts_loses_and_resumes_with_hysteresis() -> None:
@@ -51,7 +60,21 @@ def test_the_state_machine_coasts_loses_and_resumes_with_hysteresis() -> None:
                       "lost",  # below lost_below: lost at once
                       "lost", "tracking"]
     m.reset()
-    assert m.observe(peak=math.nan, psr=5.0, aberrance=0.0).confidence == 0.0
+    nothing = m.observe(peak=math.nan, psr=5.0, aberrance=0.0)
+    assert nothing.confidence == 0.0 and nothing.state is TrackState.LOST
+
+
+def test_the_confidence_is_the_fitted_model_of_the_features() -> None:
+    params = StateParams(weights=(1.0, 2.0, -0.5, -1.5), bias=-2.0)
+    m = TrackMonitor(params)
+    m.reset()
+    c, f = m.confidence(psr=math.e, ln_strength=0.5, ln_aberrance=0.2,
+                        state=TrackState.COASTING)
+    assert f == pytest.approx((1.0, 0.5, 0.2, 1.0), abs=1e-5)
+    z = 1.0 + 2.0 * 0.5 - 0.5 * 0.2 - 1.5 - 2.0
+    assert c == pytest.approx(1 / (1 + math.exp(-z)), rel=1e-5)
+    for preset in ("arcf-hc", "arcf-h", "bacf"):  # every preset ships a fitted model
+        assert any(make_params(preset).state.weights)
 
 
 def _frames(n: int = 6) -> tuple[list[np.ndarray], tuple[float, float, float, float]]:
@@ -66,20 +89,27 @@ def _frames(n: int = 6) -> tuple[list[np.ndarray], tuple[float, float, float, fl
     return frames, (101.0, 101.0, 40.0, 40.0)
 
 
-@pytest.mark.parametrize("policy", ["always", "tracking"])
-def test_only_a_tracking_target_is_learnt_when_asked(policy: str) -> None:
-    # a confidence model that never trusts anything: every update is lost
-    never = {"weights": (0.0, 0.0, 0.0), "bias": -50.0, "update_policy": policy}
-    tracker = arcf.create_tracker("bacf", state=never)
+@pytest.mark.parametrize(("policy", "reacquire"),
+                         [("always", False), ("tracking", False), ("always", True)])
+def test_only_a_tracking_target_is_learnt_when_asked(policy: str, reacquire: bool) -> None:
+    tracker = arcf.create_tracker("bacf", state={"update_policy": policy,
+                                                 "reacquire": reacquire})
     frames, box = _frames()
     first = tracker.init(frames[0], box)
     assert (first.state, first.confidence) == (TrackState.TRACKING, 1.0)
+    assert tracker.update(frames[1]).state is TrackState.TRACKING
     learnt = tracker.state.g_f.copy()
-    for frame in frames[1:]:
+
+    def never(strength: float) -> TrackState:  # a monitor that trusts nothing any more
+        tracker._monitor.state = TrackState.LOST
+        return TrackState.LOST
+
+    tracker._monitor.step = never  # type: ignore[method-assign]
+    for frame in frames[2:]:
         r = tracker.update(frame)
-        assert r.state is TrackState.LOST and r.confidence < 1e-9
+        assert r.state is TrackState.LOST
     unchanged = np.array_equal(tracker.state.g_f, learnt)
-    assert unchanged == (policy == "tracking")
+    assert unchanged == (policy == "tracking" or reacquire)
 
 
 def test_a_target_that_vanishes_is_coasted_then_lost() -> None:
@@ -91,6 +121,7 @@ def test_a_target_that_vanishes_is_coasted_then_lost() -> None:
     rng = np.random.default_rng(5)  # then only noise: the target is gone
     gone = [tracker.update(rng.integers(90, 110, frames[0].shape, dtype=np.uint8))
             for _ in range(10)]
-    assert gone[0].state is TrackState.COASTING  # at once
-    assert gone[-1].state is TrackState.LOST  # within lost_after (10) frames
+    assert gone[0].state is not TrackState.TRACKING  # at once
+    lost_after = tracker.params.state.lost_after
+    assert all(r.state is TrackState.LOST for r in gone[lost_after:])
     assert max(r.confidence for r in gone) < min(r.confidence for r in seen)
