@@ -6,7 +6,8 @@ a session's box for frame ``k`` (its ``frame_seq``) is scored against line ``k +
 ground-truth file, so a stream numbered from 0 in the dataset's frame order scores exactly as
 the library's run on the same frames would. Frames the session has no box for (not tracked:
 skipped under load, an error, after it ended) count as misses, the toolkit's convention for a
-missing prediction.
+missing prediction. A session's notices about no frame (``stopped``, ``stale``), which repeat
+its last frame's number, are not about that frame and are left out.
 """
 
 from __future__ import annotations
@@ -44,6 +45,8 @@ def read_recording(paths: Iterable[str | Path]) -> dict[str, RecordedSession]:
                 if not channel.topic.endswith("/results") or channel.message_encoding != "json":
                     continue
                 r = json.loads(message.data)
+                if r["status"] in ("stopped", "stale"):
+                    continue  # about no frame: its frame_seq is the last frame's, not a miss
                 boxes = by_session.setdefault(r["session_id"], {})
                 streams[r["session_id"]] = r["stream_id"]
                 tracked = r["status"] in ("initialized", "reinitialized", "resumed", "tracking")

@@ -7,7 +7,6 @@ a client without a certificate cannot connect at all."""
 from __future__ import annotations
 
 import json
-import queue
 import shutil
 import subprocess
 import time
@@ -111,13 +110,16 @@ def test_only_authorised_stations_track(tmp_path: Path) -> None:
                 for i, d in enumerate(data):
                     good.publish_frame("cam", data=d, seq=i)
                     got.append(results.get(timeout=10))
+                    while got[-1].status.value == "stale":  # the wait above: no frames
+                        got[-1] = results.get(timeout=10)
                 forged = got[-1].model_copy(update={"frame_seq": 999})
                 intruder.put(good.keys.results("cam", ack.session_id), encode(forged))
                 time.sleep(0.5)
                 assert [r.frame_seq for r in got] == [0, 1, 2, 3]
                 assert [r.status.value for r in got] == ["initialized"] + ["tracking"] * 3
-                with pytest.raises(queue.Empty):  # nothing forged or injected arrived
-                    results.get(timeout=0.5)
+                # nothing forged or injected arrived (the stream's stale notices may)
+                assert all(r.status.value == "stale" and r.frame_seq == 3
+                           for r in results.iter(timeout=0.5))
                 good.stop(ack.session_id)
                 results.close()
                 assert svc.metric("arcf_frames_received_total") == 4

@@ -80,12 +80,17 @@ def _got(fleet: Fleet, stream: str) -> list:
 
 
 def _collect(stream, n: int, timeout: float = 60.0) -> list:
+    """The next ``n`` results about frames (or session ends). Stale notices are skipped:
+    this file pauses between frames longer than the service's ``stale_after_s``
+    (tests/service/test_stale.py is about them)."""
     out, deadline = [], time.monotonic() + timeout
     while len(out) < n and time.monotonic() < deadline:
         try:
-            out.append(stream.get(timeout=1.0))
+            r = stream.get(timeout=1.0)
         except Exception:  # queue.Empty
             continue
+        if r.status != "stale":
+            out.append(r)
     return out
 
 
@@ -350,14 +355,16 @@ def test_reinit_numpy_frames_and_callbacks(service, frames) -> None:
                 client.reinit(ack.session_id, new_box, frame_seq=4)
             client.publish_frame("raw", image, encoding="bgr8", seq=i)
             deadline = time.monotonic() + 10
-            while len(received) <= i and time.monotonic() < deadline:
+            while not any(r.frame_seq == i and r.track_state for r in list(received)) \
+                    and time.monotonic() < deadline:
                 time.sleep(0.01)
         client.stop(ack.session_id)
         deadline = time.monotonic() + 10  # the session's last result: it stopped
-        while len(received) <= len(images) and time.monotonic() < deadline:
+        while not any(r.status == "stopped" for r in list(received)) \
+                and time.monotonic() < deadline:
             time.sleep(0.01)
         sub.close()
-    *received, last = received
+    *received, last = [r for r in received if r.status != "stale"]  # about frames, and the end
     assert str(getattr(last.status, "value", last.status)) == "stopped"
     assert last.frame_seq == len(images) - 1 and last.code is None
     t = arcf.create_tracker("arcf-h")
