@@ -276,6 +276,9 @@ def test_the_ledger_accounts_for_every_frame() -> None:
     # s1: skipped frame 0 at the start, frames 4-5 dropped (reported by frame 6), 8-9 queued
     for seq, dropped in ((1, 0), (2, 0), (3, 0), (6, 2), (7, 0)):
         rec.on_result(_result("s1", seq, dropped=dropped))
+    # then its stream paused: a stale notice repeats frame 7's number, about no frame
+    rec.on_result(_result("s1", 7, status="stale"))
+    assert [r.frame_seq for r in rec.stale] == [7] and rec.answered(7) == 1
     # s2: frame 2 lost without a trace, frame 4 arriving after frame 5 (which reports it)
     for seq in (0, 1, 3, 5, 4):
         rec.on_result(_result("s2", seq, dropped=1 if seq == 5 else 0))
