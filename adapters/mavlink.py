@@ -54,7 +54,14 @@ from schemas import ErrorCode, Frame, Result, ResultStatus, TrackState
 from service.client import ServiceError, TrackingClient
 from service.decoding import decode_compressed
 
-from ._command import add_service_arguments, prepare, service_client
+from ._command import (
+    add_override_arguments,
+    add_service_arguments,
+    check_preset,
+    parse_overrides,
+    prepare,
+    service_client,
+)
 
 log = logging.getLogger("arcf.mavlink")
 mav = mavutil.mavlink
@@ -610,42 +617,7 @@ class MavlinkCameras:
         return mav.MAV_RESULT_ACCEPTED, None
 
 
-def check_preset(client: TrackingClient, preset: str, overrides: Mapping[str, Any]) -> None:
-    """Refuse, before any station clicks, a preset or an override the service would refuse
-    (its ``presets`` reply says what each override accepts). Raises ``ValueError``."""
-    info = client.presets()
-    if preset not in {p.name for p in info.presets}:
-        raise ValueError(f"unknown preset {preset!r}; the service runs "
-                         f"{sorted(p.name for p in info.presets)}")
-    accepts = {p.name: p for p in info.parameters}
-    kinds = {"bool": (bool,), "int": (int,), "float": (int, float), "str": (str,)}
-    for name, value in overrides.items():
-        p = accepts.get(name)
-        if p is None:
-            raise ValueError(f"unknown override {name!r}")
-        if not isinstance(value, kinds[p.kind]) or (p.kind != "bool" and isinstance(value, bool)):
-            raise ValueError(f"override {name}={value!r}: a {p.kind} is needed")
-        if p.choices is not None and value not in p.choices:
-            raise ValueError(f"override {name}={value!r}: one of {p.choices}")
-        if p.kind in ("int", "float") and not (
-                (p.minimum is None or value >= p.minimum)
-                and (p.maximum is None or value <= p.maximum)):
-            raise ValueError(f"override {name}={value!r}: within [{p.minimum}, {p.maximum}]")
-
-
 # ---------------------------------------------------------------------------------- command
-def _value(text: str) -> Any:
-    low = text.lower()
-    if low in ("true", "false"):
-        return low == "true"
-    for kind in (int, float):
-        try:
-            return kind(text)
-        except ValueError:
-            pass
-    return text
-
-
 def _camera(text: str, index: int) -> CameraConfig:
     stream, _, comp = text.partition("=")
     return CameraConfig(stream, int(comp) if comp else FIRST_CAMERA_COMPONENT + index)
@@ -664,9 +636,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     add_service_arguments(ap)
     ap.add_argument("--system-id", type=int, default=1,
                     help="MAVLink system id: the vehicle's (default: %(default)s)")
-    ap.add_argument("--preset", default="arcf-hc")
-    ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
-                    help="preset override for the sessions, e.g. state.reacquire=true")
+    add_override_arguments(ap)
     ap.add_argument("--status-hz", type=float, default=10.0,
                     help="CAMERA_TRACKING_IMAGE_STATUS rate until a station sets one")
     ap.add_argument("--link-timeout", type=float, default=5.0,
@@ -676,12 +646,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                     "(ERROR, no box): the service gone; use the service's stale_after_s "
                     "(default %(default)s; 0: only the service's own stale notices)")
     args = ap.parse_args(argv)
-    overrides = {}
-    for item in args.set:
-        name, sep, value = item.partition("=")
-        if not sep:
-            ap.error(f"--set needs NAME=VALUE, got {item!r}")
-        overrides[name] = _value(value)
+    overrides = parse_overrides(ap, args.set)
     cameras = [_camera(c, i) for i, c in enumerate(args.camera)]
     stop = prepare()
     with service_client(args) as client:

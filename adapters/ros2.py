@@ -41,6 +41,7 @@ import argparse
 import hashlib
 import logging
 import queue
+import sys
 import threading
 import time
 from collections import Counter, OrderedDict
@@ -56,7 +57,14 @@ from schemas import Result, ResultStatus, TrackState
 from service.client import ServiceError, TrackingClient
 
 from . import ros2_types as rt
-from ._command import add_service_arguments, prepare, service_client
+from ._command import (
+    add_override_arguments,
+    add_service_arguments,
+    check_preset,
+    parse_overrides,
+    prepare,
+    service_client,
+)
 
 log = logging.getLogger("arcf.ros2")
 
@@ -483,10 +491,11 @@ def main(argv: Sequence[str] | None = None) -> int:
                     "tcp/127.0.0.1:7448)")
     ap.add_argument("--domain-id", type=int, default=0)
     ap.add_argument("--node-name", default="arcf")
-    ap.add_argument("--preset", default="arcf-hc")
+    add_override_arguments(ap)
     ap.add_argument("--bridge-keys", action="store_true",
                     help="also the keys of zenoh-bridge-ros2dds (topic name, raw CDR)")
     args = ap.parse_args(argv)
+    overrides = parse_overrides(ap, args.set)
     images = {}
     for item in args.image:
         topic, sep, stream = item.partition("=")
@@ -497,9 +506,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     from service.transport import open_session
 
     with service_client(args) as client:
+        try:  # refused now rather than at the first track request
+            check_preset(client, args.preset, overrides)
+        except (ValueError, TimeoutError, ServiceError) as exc:
+            print(f"arcf-ros2: {exc}", file=sys.stderr)
+            return 2
         ros = open_session("client", connect=[args.ros_connect]) if args.ros_connect else None
         bridge = Ros2Bridge(client, images, domain_id=args.domain_id, node_name=args.node_name,
-                            ros_session=ros, preset=args.preset, bridge_keys=args.bridge_keys)
+                            ros_session=ros, preset=args.preset, overrides=overrides,
+                            bridge_keys=args.bridge_keys)
         print(f"arcf-ros2: node /{args.node_name} in domain {args.domain_id}: "
               + ", ".join(f"{t} -> {s} -> /{args.node_name}/{s}/detections"
                           for t, s in images.items()), flush=True)

@@ -349,3 +349,46 @@ def test_a_ros2_bridge_with_a_bad_dotted_override_logs_the_refusal(
         bridge.client.close()
         node.close()
         client.close()
+
+
+# ---------------------------------------------------------------------------------- arcf-ros2
+ARCF_ROS2 = Path(sys.executable).parent / "arcf-ros2"
+
+
+@pytest.mark.parametrize(("sets", "words"), [
+    (("--set", "state.reacquire=false", "--set", "state.probes=3"), None),
+    (("--set", "state.nope=1"), "unknown override 'state.nope'"),
+    (("--set", "state.probes=0"), "override state.probes=0: within"),
+])
+def test_arcf_ros2_takes_dotted_sets_and_refuses_bad_ones_at_start_up(
+        service: ServiceProcess, sets: tuple[str, ...], words: str | None) -> None:
+    """``arcf-ros2 --set state.reacquire=false``, as an operator starts it: a good nested
+    override starts the node, a bad one ends the command with code 2 and the reason (not a
+    refusal logged at the first track request)."""
+    if not ARCF_ROS2.is_file():
+        pytest.skip("arcf-ros2 is not installed in this environment")
+    proc = subprocess.Popen(
+        [str(ARCF_ROS2), "--image", "/cam/image/compressed=ros-cmd", "--connect",
+         service.endpoint, "--preset", "arcf-h", *sets],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout is not None and proc.stderr is not None
+        ready, _, _ = select.select([proc.stdout], [], [], 60.0)
+        line = proc.stdout.readline().strip() if ready else ""
+        if words is None:
+            assert line.startswith("arcf-ros2: node /arcf"), line
+        else:
+            assert line == ""
+            assert proc.wait(timeout=60) == 2
+            assert words in proc.stderr.read()
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(timeout=10)
+        for pipe in (proc.stdout, proc.stderr):
+            if pipe is not None:
+                pipe.close()
