@@ -5,7 +5,9 @@ are dropped, so the network is never blocked; the gap shows in the frame numbers
 Zenoh's callback only copies the payload into the inbox and wakes the loop; decoding and tracking
 run on this process's own loop, never inside a callback. Commands (start, reinit, stop) come
 from the control plane over a multiprocessing queue, pumped into the same wake-up. An idle worker
-sleeps on that wake-up instead of polling, so it costs no CPU.
+sleeps on that wake-up instead of polling, so it costs no CPU; with sessions, at most until the
+earliest moment one of them would go stale (its stream silent for ``stale_after_s``), when it
+publishes that session's ``stale`` notice.
 """
 
 from __future__ import annotations
