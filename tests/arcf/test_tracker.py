@@ -872,9 +872,13 @@ def test_documented_preset_values() -> None:
     assert sf == ScaleFilterParams()
     assert (sf.n_scales, sf.scale_step, sf.sigma_factor) == (33, 1.03, 0.5)
     assert (sf.learning_rate, sf.regularizer, sf.model_max_area) == (0.025, 1e-4, 512)
-    # BACF is ARCF-H without the aberrance term, nothing else changed
+    # BACF is ARCF-H without the aberrance term, nothing else changed but the confidence
+    # model, fitted on its own runs
     assert BACF.gamma == 0.0
-    assert dataclasses.replace(BACF, name="arcf-h", gamma=0.71) == ARCF_H
+    assert dataclasses.replace(BACF, name="arcf-h", gamma=0.71, state=ARCF_H.state) == ARCF_H
+    # re-acquisition on in every preset, off in the release
+    assert ARCF_H.state.reacquire and ARCF_HC.state.reacquire and BACF.state.reacquire
+    assert not release.state.reacquire
 
 
 def test_make_params_overrides() -> None:
