@@ -23,20 +23,6 @@ from .errors import InvalidParameterError, UnknownPresetError
 from .features.fhog import ArithmeticMode as FhogArithmetic
 from .state import StateParams
 
-#: The confidence models (``StateParams.weights``/``bias``) of the presets, fitted per preset
-#: by ``python benchmarks/track_state.py --fit`` on their own runs of the 9 shared sequences and
-#: the 3 occlusion clips (docs/track-state.md): a preset's PSR and peak have their own scale.
-_CONFIDENCE = {
-    "arcf-h": ((2.2327, -0.6482, -0.5953, -1.7436), -3.5306),
-    "arcf-hc": ((-0.1483, 1.5814, -1.0097, -0.6156), 2.9427),
-    "bacf": ((2.6893, -1.9910, -0.1435, -3.0149), -4.7589),
-}
-
-
-def _state(preset: str) -> StateParams:
-    weights, bias = _CONFIDENCE[preset]
-    return StateParams(weights=weights, bias=bias)
-
 AberranceMode = Literal["paper", "release"]
 ScaleMode = Literal["search", "filter"]
 SizingMode = Literal["filter_max_area", "sample_area"]
@@ -271,7 +257,6 @@ ARCF_H = TrackerParams(
     # on the 9 shared sequences with the pyramid (docs/benchmarks.md §3): P / AUC 0.598 / 0.359
     # against the release-compatible 0.592 / 0.350, no sequence lost, 1.2x the frame rate.
     spectra="half",
-    state=_state("arcf-h"),
 )
 
 ARCF_HC = TrackerParams(
@@ -290,11 +275,10 @@ ARCF_HC = TrackerParams(
     # Measured best on the 9 shared sequences (docs/benchmarks.md §2): the paper's form
     # P 0.740 / AUC 0.509 (= the authors' published 0.740 / 0.508), the release's 0.699 / 0.494.
     aberrance="paper",
-    state=_state("arcf-hc"),
 )
 
 #: BACF is ARCF-H without the aberrance term; the release's "Baseline_BACF" was produced this way.
-BACF = dataclasses.replace(ARCF_H, name="bacf", gamma=0.0, state=_state("bacf"))
+BACF = dataclasses.replace(ARCF_H, name="bacf", gamma=0.0)
 
 PRESETS: dict[str, TrackerParams] = {p.name: p for p in (ARCF_H, ARCF_HC, BACF)}
 

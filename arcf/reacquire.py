@@ -75,6 +75,23 @@ class TargetTemplate:
         small = cv2.resize(patch, (out_hw[1], out_hw[0]), interpolation=cv2.INTER_AREA)
         return cls(small, shrink)
 
+    def similarity(self, image: np.ndarray, centre: Point, size_hw: tuple[float, float]) -> float:
+        """The grey look of the box of ``size_hw`` around ``centre`` against this template:
+        normalised cross-correlation at the template's size, in [-1, 1] (0 for a box outside
+        the frame or of one flat grey)."""
+        rows, cols = image.shape[:2]
+        h, w = max(size_hw[0], 2.0), max(size_hw[1], 2.0)
+        r0 = int(np.clip(round(centre[0] - 1 - h / 2), 0, rows))
+        c0 = int(np.clip(round(centre[1] - 1 - w / 2), 0, cols))
+        r1 = int(np.clip(round(centre[0] - 1 + h / 2), 0, rows))
+        c1 = int(np.clip(round(centre[1] - 1 + w / 2), 0, cols))
+        if r1 - r0 < 2 or c1 - c0 < 2:
+            return 0.0
+        th, tw = self.pixels.shape
+        box = cv2.resize(grey(image[r0:r1, c0:c1]), (tw, th), interpolation=cv2.INTER_AREA)
+        score = float(cv2.matchTemplate(box, self.pixels, cv2.TM_CCOEFF_NORMED)[0, 0])
+        return score if math.isfinite(score) else 0.0
+
     def candidates(self, image: np.ndarray, count: int) -> list[tuple[float, Point]]:
         """The ``count`` best matches over the whole frame, best first, as (score, centre),
         each at least a template away from the better ones (non-maximum suppression)."""

@@ -59,7 +59,8 @@ class TrackState(str, Enum):
 STATE_CODES = {TrackState.TRACKING: 0, TrackState.COASTING: 1, TrackState.LOST: 2}
 
 #: feature names, in the order of ``StateParams.weights``
-FEATURES = ("ln_psr", "ln_strength", "ln_aberrance_ratio", "not_tracking")
+FEATURES = ("ln_psr", "ln_strength", "ln_aberrance_ratio", "not_tracking", "look",
+            "ln_frames")
 
 #: frames of a (re)initialisation that always feed the references, whatever their state: the
 #: references need a few values before a drop can be measured against them
@@ -70,11 +71,12 @@ MIN_REFERENCES = 3
 class StateParams:
     """The confidence model and the state machine's thresholds (see the module docstring)."""
 
-    #: Logistic weights of ``FEATURES`` and the bias: the confidence model, fitted by
-    #: ``benchmarks/track_state.py`` on our runs of ARCF-HC, ARCF-H and BACF on the 9 shared
-    #: sequences and the 3 occlusion clips (docs/track-state.md).
-    weights: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
-    bias: float = 0.0
+    #: Logistic weights of ``FEATURES`` and the bias: the confidence model, one for every
+    #: preset, fitted by ``benchmarks/track_state.py --fit`` on our runs of ARCF-HC, ARCF-H and
+    #: BACF on the 9 shared sequences and the 3 occlusion clips (docs/track-state.md).
+    weights: tuple[float, float, float, float, float, float] = (
+        3.3193, 0.0363, -0.0972, -1.9232, 1.2409, -1.7556)
+    bias: float = 1.8217
     #: Recent trusted frames whose median PSR, peak and aberrance are the references (2 s at
     #: 10 fps; a choice: long enough to ride over one bad frame, short enough to follow a
     #: target whose look changes).
@@ -128,20 +130,19 @@ class StateParams:
             raise InvalidParameterError("invalid track-state parameters: " + "; ".join(problems))
 
 
-Features = tuple[float, float, float, float]
+Features = tuple[float, float, float, float, float, float]
 
 
 @dataclass(frozen=True)
 class Assessment:
-    """The monitor's verdict on one frame."""
+    """The monitor's reading of one frame's response."""
 
     state: TrackState
-    #: Estimated probability that the box overlaps the target (IoU > 0), in [0, 1].
-    confidence: float
     #: PSR x peak over their medians on the recent trusted frames (1: as usual; NaN: unknown).
     strength: float
-    #: The features the confidence was computed from, in ``FEATURES`` order.
-    features: Features
+    #: ln of the strength, and of the aberrance over its recent median.
+    ln_strength: float
+    ln_aberrance: float
 
 
 def _median(values: Iterable[float]) -> float:
@@ -169,12 +170,12 @@ class TrackMonitor:
     _since_reset: int = 0
 
     def reset(self) -> Assessment:
-        """A new box was given: the track starts ``tracking`` with full confidence, and the
-        next frames set the references."""
+        """A new box was given: the track starts ``tracking``, and the next frames set the
+        references."""
         self.state, self.coasting_for = TrackState.TRACKING, 0
         self._refs = deque(maxlen=self.params.reference_frames)
         self._since_reset = 0
-        return Assessment(TrackState.TRACKING, 1.0, 1.0, (0.0, 0.0, 0.0, 0.0))
+        return Assessment(TrackState.TRACKING, 1.0, 0.0, 0.0)
 
     def references(self) -> tuple[float, float, float]:
         """The median PSR, peak and aberrance of the recent trusted frames (NaN before any)."""
@@ -190,10 +191,16 @@ class TrackMonitor:
         return _log_ratio(psr, ref_psr) + _log_ratio(peak, ref_peak)
 
     def confidence(self, psr: float, ln_strength: float, ln_aberrance: float,
-                   state: TrackState) -> tuple[float, Features]:
-        """The calibrated probability that the box overlaps the target, and its features."""
+                   state: TrackState, look: float, frames: int) -> tuple[float, Features]:
+        """The calibrated probability that the box overlaps the target, and its features.
+
+        ``look`` is the box's grey look against the target's at the (re)initialisation
+        (normalised cross-correlation, :meth:`arcf.reacquire.TargetTemplate.similarity`), and
+        ``frames`` the frames since it: a track that has run long has had more chances to
+        drift, which no single frame's response shows.
+        """
         f = (math.log(max(psr, 0.0) + _EPS), ln_strength, ln_aberrance,
-             0.0 if state is TrackState.TRACKING else 1.0)
+             0.0 if state is TrackState.TRACKING else 1.0, look, math.log1p(max(frames, 0)))
         if not all(map(math.isfinite, f)):
             return 0.0, f
         z = self.params.bias + sum(w * v for w, v in zip(self.params.weights, f, strict=True))
@@ -218,23 +225,19 @@ class TrackMonitor:
                 self.state = TrackState.LOST
         return self.state
 
-    def probe(self, peak: float, psr: float) -> tuple[float, float]:
-        """A window probed away from the box (re-acquisition): its strength against the
-        references, and the confidence the track would have there (its aberrance, which
-        compares a map with the previous frame's at the box, has no meaning there and reads
-        as the reference's)."""
+    def probe(self, peak: float, psr: float) -> float:
+        """The strength of a window probed away from the box (re-acquisition), against the
+        references (0 before any)."""
         ln_s = self.ln_strength(peak, psr) if self._refs else math.nan
-        strength = math.exp(ln_s) if math.isfinite(ln_s) else 0.0
-        return strength, self.confidence(psr, ln_s, 0.0, TrackState.TRACKING)[0]
+        return math.exp(ln_s) if math.isfinite(ln_s) else 0.0
 
     def resume(self) -> None:
         """The target was found again away from the box: back to ``tracking``."""
         self.state, self.coasting_for = TrackState.TRACKING, 0
 
     def observe(self, peak: float, psr: float, aberrance: float) -> Assessment:
-        """One frame's signals: its strength, the state it leads to and the confidence. A
-        frame that stays ``tracking`` (and the first few after a reset) becomes one of the
-        references."""
+        """One frame's signals: its strength and the state it leads to. A frame that stays
+        ``tracking`` (and the first few after a reset) becomes one of the references."""
         ln_s = self.ln_strength(peak, psr)
         if self._refs:
             ln_ab = _log_ratio(aberrance, self.references()[2])
@@ -242,9 +245,8 @@ class TrackMonitor:
             ln_ab = 0.0 if math.isfinite(aberrance) else math.nan
         strength = math.exp(ln_s) if math.isfinite(ln_s) else math.nan
         state = self.step(strength)
-        c, f = self.confidence(psr, ln_s, ln_ab, state)
         self._since_reset += 1
         finite = all(map(math.isfinite, (peak, psr, aberrance)))
         if finite and (state is TrackState.TRACKING or self._since_reset <= MIN_REFERENCES):
             self._refs.append((psr, peak, aberrance))
-        return Assessment(state, c, strength, f)
+        return Assessment(state, strength, ln_s, ln_ab)

@@ -157,7 +157,10 @@ class FrameState:
     #: what a lost track searches the frame for), and the trusted frames since the last one.
     templates: deque[TargetTemplate] = field(default_factory=lambda: deque(maxlen=TEMPLATE_KEEP))
     trusted_frames: int = 0
-    #: Position and scale factor on the last tracking frame (where a lost box stays).
+    #: The target's grey look at the (re)initialisation, which the confidence compares
+    #: every box with.
+    initial_look: TargetTemplate | None = None
+    #: Position and scale factor on the last tracking frame (the size a lost box keeps).
     tracked: tuple[tuple[float, float], float] | None = None
     #: Where the search saw the target on the last lost frame (confirmed on the next).
     candidate: tuple[float, float] | None = None
@@ -296,10 +299,11 @@ class ARCFTracker:
         except BaseException:
             self._layout, self._state = previous
             raise
-        verdict = self._monitor.reset()
+        self._monitor.reset()
+        state.initial_look = TargetTemplate.cut(image, state.pos, self._size_hw())
         if self.params.state.reacquire:
             state.tracked = (state.pos, state.scale_factor)
-            state.templates.append(TargetTemplate.cut(image, state.pos, self._size_hw()))
+            state.templates.append(state.initial_look)
         return TrackResult(
             box=self._box(),
             peak=float(first.max()),
@@ -308,8 +312,8 @@ class ARCFTracker:
             aberrance_release=0.0,
             scale=1.0,
             frame_index=0,
-            confidence=verdict.confidence,
-            state=verdict.state,
+            confidence=1.0,  # the box was given
+            state=TrackState.TRACKING,
         )
 
     def update(self, frame: np.ndarray) -> TrackResult:
@@ -326,7 +330,9 @@ class ARCFTracker:
         frob, spectral, target_f = self._aberrance(response)
         psr = peak_to_sidelobe(response, layout.psr_radius)
         verdict = self._monitor.observe(peak, psr, spectral)
-        state_now, confidence, jumped = verdict.state, verdict.confidence, False
+        state_now, jumped = verdict.state, False
+        # what the confidence reads: the frame's response, or the window the track jumped to
+        read = (psr, verdict.ln_strength, verdict.ln_aberrance)
         if policy.reacquire and state_now is TrackState.LOST:
             # a lost box keeps the size the target had when last tracked: the scale estimated
             # on what is not the target means nothing
@@ -334,7 +340,7 @@ class ARCFTracker:
                 state.scale_factor = state.tracked[1]
             found = self._reacquire(image, verdict.strength)
             if found is not None:
-                confidence, state_now, jumped = found, TrackState.TRACKING, True
+                read, state_now, jumped = found, TrackState.TRACKING, True
         # with re-acquisition on, the filter of the last tracking frame is kept while the
         # track is not tracking: it is what still knows the target
         learns = (state_now is TrackState.TRACKING
@@ -346,6 +352,9 @@ class ARCFTracker:
             if state_now is TrackState.TRACKING and not jumped:
                 state.tracked = (state.pos, state.scale_factor)
                 self._keep_template(image, verdict.strength)
+        assert state.initial_look is not None
+        look = state.initial_look.similarity(image, state.pos, self._size_hw())
+        confidence, _ = self._monitor.confidence(*read, state_now, look, state.frame_index)
         return TrackResult(
             box=self._box(),
             peak=peak,
@@ -370,13 +379,15 @@ class ARCFTracker:
             state.trusted_frames = 0
             state.templates.append(TargetTemplate.cut(image, state.pos, self._size_hw()))
 
-    def _reacquire(self, image: np.ndarray, strength: float) -> float | None:
+    def _reacquire(self, image: np.ndarray,
+                   strength: float) -> tuple[float, float, float] | None:
         """Look for the target over the whole frame (:mod:`arcf.reacquire`): the kept
-        template proposes ``probes`` places, the kept filter verifies each (and the place
-        found on the frame before). A place strong enough on two frames in a row, and clearly
-        stronger than the box, moves the track there; the confidence there is returned. The
-        box itself keeps following the filter, so a track wrongly judged lost loses
-        nothing."""
+        template proposes ``probes`` places, the kept filter verifies each (and the place where
+        the target was last tracked, and the one found on the frame before). A place strong
+        enough on two frames in a row, and clearly stronger than the box, moves the track
+        there; returned are the PSR, ln strength and ln aberrance ratio (0: no previous map
+        there) the confidence reads. The box itself keeps following the filter, so a track
+        wrongly judged lost loses nothing."""
         state, policy = self.state, self.params.state
         if not state.templates:
             return None
@@ -388,16 +399,16 @@ class ARCFTracker:
         best: tuple[float, float, tuple[float, float], np.ndarray] | None = None
         for centre in places:
             peak, psr, pos, response = self._probe(image, centre, state.g_f)
-            s, c = self._monitor.probe(peak, psr)
+            s = self._monitor.probe(peak, psr)
             if best is None or s > best[0]:
-                best = (s, c, pos, response)
+                best = (s, psr, pos, response)
         if best is not None and best[0] >= policy.lost_below:
             # a promising place may sit off the target's centre, where the cosine window
             # dims it: one more window centred on the filter's peak tells
             peak, psr, pos, response = self._probe(image, best[2], state.g_f)
-            s, c = self._monitor.probe(peak, psr)
+            s = self._monitor.probe(peak, psr)
             if s > best[0]:
-                best = (s, c, pos, response)
+                best = (s, psr, pos, response)
         if math.isnan(strength):
             strength = 0.0
         # the box is abandoned only where it is weaker than a coasting one, for a place
@@ -406,7 +417,7 @@ class ARCFTracker:
                 or best[0] < strength + policy.reacquire_margin):
             state.candidate = None
             return None
-        s, c, pos, response = best
+        s, psr, pos, response = best
         previous, state.candidate = state.candidate, pos
         reach = max(self._size_hw())
         if previous is None or math.dist(previous, pos) > reach:
@@ -415,7 +426,7 @@ class ARCFTracker:
         state.m_prev = fftshift2d(response)
         state.p_prev = peak_index(state.m_prev)
         self._monitor.resume()
-        return c
+        return psr, math.log(s), 0.0
 
     def _probe(
         self, image: np.ndarray, centre: tuple[float, float], g_f: np.ndarray

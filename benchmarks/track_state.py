@@ -44,6 +44,7 @@ from arcf.cli import parse_override
 from arcf.data import data_root
 from arcf.eval.failure import episodes
 from arcf.eval.metrics import overlaps, score_sequence
+from arcf.state import FEATURES
 
 PRESETS = ("arcf-hc", "arcf-h", "bacf")
 DATASETS = ("uav123_10fps", "dtb70", "uavdt")
@@ -69,7 +70,7 @@ class Run:
     groundtruth: np.ndarray  #: (N, 4), NaN rows where no target is visible
     state: np.ndarray  #: (N,) STATE_CODES
     confidence: np.ndarray  #: (N,)
-    features: np.ndarray  #: (N, 4) the confidence model's features (NaN on frame 0)
+    features: np.ndarray  #: (N, len(FEATURES)) the confidence model's features (NaN on frame 0)
     reacquired: np.ndarray  #: (N,) bool
     seconds: np.ndarray  #: (N,) tracker time
 
@@ -103,15 +104,15 @@ def run(preset: str, kind: str, name: str, overrides: dict[str, Any]) -> Run:
 
     seq = _sequence(kind, name)
     tracker = arcf.create_tracker(preset, **overrides)
-    features: list[tuple[float, ...]] = [(np.nan,) * 4]
-    observe = tracker._monitor.observe
+    features: list[tuple[float, ...]] = [(np.nan,) * len(FEATURES)]
+    confidence = tracker._monitor.confidence
 
-    def recording(*args: float) -> Any:  # the features the confidence was computed from
-        verdict = observe(*args)
-        features.append(verdict.features)
-        return verdict
+    def recording(*args: Any) -> Any:  # the features each frame's confidence was read from
+        c, f = confidence(*args)
+        features.append(f)
+        return c, f
 
-    tracker._monitor.observe = recording  # type: ignore[method-assign]
+    tracker._monitor.confidence = recording  # type: ignore[method-assign]
     boxes, state, conf, reacq, secs = [], [], [], [], []
     for i, path in enumerate(seq.frames):
         frame = cv2.imread(str(path), cv2.IMREAD_COLOR)
@@ -214,26 +215,31 @@ def fit_logistic(x: np.ndarray, y: np.ndarray, l2: float = 1e-3) -> tuple[np.nda
 
 
 def fit(runs: list[Run]) -> list[str]:
-    """Per preset: the confidence model fitted on all its runs, and the calibration error of
-    models fitted without each sequence (leave-one-sequence-out)."""
-    lines = []
-    for preset in sorted({r.preset for r in runs}):
-        mine = [r for r in runs if r.preset == preset]
-        xs = [r.features[1:] for r in mine]
-        ys = [(r.iou[1:] > 0).astype(float) for r in mine]
-        ok = [np.all(np.isfinite(x), axis=1) for x in xs]
-        w, b = fit_logistic(np.vstack([x[k] for x, k in zip(xs, ok, strict=True)]),
-                            np.concatenate([y[k] for y, k in zip(ys, ok, strict=True)]))
-        oof_c, oof_y = [], []
-        for i in range(len(mine)):
-            rest = [j for j in range(len(mine)) if j != i]
-            wi, bi = fit_logistic(np.vstack([xs[j][ok[j]] for j in rest]),
-                                  np.concatenate([ys[j][ok[j]] for j in rest]))
-            oof_c.append(1.0 / (1.0 + np.exp(-(xs[i][ok[i]] @ wi + bi))))
-            oof_y.append(ys[i][ok[i]])
-        _, ece = reliability(np.concatenate(oof_c), np.concatenate(oof_y).astype(bool))
-        lines.append(f"- `{preset}`: weights=({', '.join(f'{v:.4f}' for v in w)}), "
-                     f"bias={b:.4f}; leave-one-sequence-out ECE {ece:.3f}")
+    """The confidence model, one for every preset, fitted on all the runs; and its
+    calibration error when every sequence is scored by a model fitted without it (under any
+    preset): what to expect on sequences it never saw."""
+    xs = [r.features[1:] for r in runs]
+    ys = [(r.iou[1:] > 0).astype(float) for r in runs]
+    ok = [np.all(np.isfinite(x), axis=1) for x in xs]
+
+    def fitted(idx: list[int]) -> tuple[np.ndarray, float]:
+        return fit_logistic(np.vstack([xs[j][ok[j]] for j in idx]),
+                            np.concatenate([ys[j][ok[j]] for j in idx]))
+
+    w, b = fitted(list(range(len(runs))))
+    conf: list[np.ndarray] = [np.empty(0)] * len(runs)
+    for name in sorted({r.sequence for r in runs}):
+        held = [j for j, r in enumerate(runs) if r.sequence == name]
+        wj, bj = fitted([j for j, r in enumerate(runs) if r.sequence != name])
+        for j in held:
+            conf[j] = 1.0 / (1.0 + np.exp(-(xs[j][ok[j]] @ wj + bj)))
+    lines = [f"weights=({', '.join(f'{v:.4f}' for v in w)}),  # {', '.join(FEATURES)}",
+             f"bias={b:.4f}", "", "Leave-one-sequence-out expected calibration error:"]
+    for preset in [*sorted({r.preset for r in runs}), None]:
+        idx = [j for j, r in enumerate(runs) if preset in (None, r.preset)]
+        _, ece = reliability(np.concatenate([conf[j] for j in idx]),
+                             np.concatenate([ys[j][ok[j]] for j in idx]).astype(bool))
+        lines.append(f"- {preset or 'pooled'}: {ece:.3f}")
     return lines
 
 
@@ -283,7 +289,7 @@ def report(runs: list[Run], plain: list[Run], args: argparse.Namespace) -> None:
     print("\n".join(rows))
     print(f"\nExpected calibration error, pooled: {ece:.3f}")
     if args.fit:
-        print("\nConfidence model fitted on these runs:\n")
+        print("\nConfidence model fitted on these runs (StateParams):\n")
         print("\n".join(fit(runs)))
 
 

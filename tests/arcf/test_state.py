@@ -61,20 +61,27 @@ def test_the_state_machine_coasts_loses_and_resumes_with_hysteresis() -> None:
                       "lost", "tracking"]
     m.reset()
     nothing = m.observe(peak=math.nan, psr=5.0, aberrance=0.0)
-    assert nothing.confidence == 0.0 and nothing.state is TrackState.LOST
+    assert nothing.state is TrackState.LOST
+    assert m.confidence(5.0, nothing.ln_strength, nothing.ln_aberrance, nothing.state, 0.5,
+                        3)[0] == 0.0
 
 
 def test_the_confidence_is_the_fitted_model_of_the_features() -> None:
-    params = StateParams(weights=(1.0, 2.0, -0.5, -1.5), bias=-2.0)
+    params = StateParams(weights=(1.0, 2.0, -0.5, -1.5, 0.8, -0.3), bias=-2.0)
     m = TrackMonitor(params)
     m.reset()
     c, f = m.confidence(psr=math.e, ln_strength=0.5, ln_aberrance=0.2,
-                        state=TrackState.COASTING)
-    assert f == pytest.approx((1.0, 0.5, 0.2, 1.0), abs=1e-5)
-    z = 1.0 + 2.0 * 0.5 - 0.5 * 0.2 - 1.5 - 2.0
+                        state=TrackState.COASTING, look=0.6, frames=9)
+    assert f == pytest.approx((1.0, 0.5, 0.2, 1.0, 0.6, math.log(10)), abs=1e-5)
+    z = 1.0 + 2.0 * 0.5 - 0.5 * 0.2 - 1.5 + 0.8 * 0.6 - 0.3 * math.log(10) - 2.0
     assert c == pytest.approx(1 / (1 + math.exp(-z)), rel=1e-5)
-    for preset in ("arcf-hc", "arcf-h", "bacf"):  # every preset ships a fitted model
-        assert any(make_params(preset).state.weights)
+    # the shipped model: a well-seen target is trusted, the same box looking like something
+    # else is not, and a coasting track less than a tracking one
+    shipped = TrackMonitor(StateParams())
+    seen = shipped.confidence(8.0, 0.0, 0.0, TrackState.TRACKING, 0.8, 50)[0]
+    other = shipped.confidence(8.0, 0.0, 0.0, TrackState.TRACKING, -0.2, 50)[0]
+    coasting = shipped.confidence(8.0, 0.0, 0.0, TrackState.COASTING, 0.8, 50)[0]
+    assert seen > 0.9 and other < seen and coasting < seen
 
 
 def _frames(n: int = 6) -> tuple[list[np.ndarray], tuple[float, float, float, float]]:

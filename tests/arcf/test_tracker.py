@@ -303,8 +303,7 @@ def test_confidence_drops_when_the_target_disappears(preset: str) -> None:
 
 def test_bacf_is_arcf_h_with_gamma_zero() -> None:
     bacf = tracked("bacf", MOVING)
-    # the same tracker; only its confidence model is fitted on its own runs
-    gamma0 = tracked("arcf-h", MOVING, gamma=0.0, state=make_params("bacf").state)
+    gamma0 = tracked("arcf-h", MOVING, gamma=0.0)
     assert [r.box for r in bacf] == [r.box for r in gamma0]
     assert bacf == gamma0  # every field, bit for bit
 
@@ -872,10 +871,9 @@ def test_documented_preset_values() -> None:
     assert sf == ScaleFilterParams()
     assert (sf.n_scales, sf.scale_step, sf.sigma_factor) == (33, 1.03, 0.5)
     assert (sf.learning_rate, sf.regularizer, sf.model_max_area) == (0.025, 1e-4, 512)
-    # BACF is ARCF-H without the aberrance term, nothing else changed but the confidence
-    # model, fitted on its own runs
+    # BACF is ARCF-H without the aberrance term, nothing else changed
     assert BACF.gamma == 0.0
-    assert dataclasses.replace(BACF, name="arcf-h", gamma=0.71, state=ARCF_H.state) == ARCF_H
+    assert dataclasses.replace(BACF, name="arcf-h", gamma=0.71) == ARCF_H
     # re-acquisition on in every preset, off in the release
     assert ARCF_H.state.reacquire and ARCF_HC.state.reacquire and BACF.state.reacquire
     assert not release.state.reacquire
