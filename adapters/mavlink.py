@@ -22,7 +22,8 @@ for each configured stream of the service:
   result) or no result at all came for ``stale_after_s`` (the service or its worker gone),
   the status is ERROR with NaN coordinates and target data NONE (the spec's "NAN if
   unknown": an autopilot must not follow the last box), with a ``STATUSTEXT`` when it
-  starts and when results resume;
+  starts and when results resume; the status goes out at once on either change (when the
+  notice or the result arrives, or the timeout passes), not at its next interval;
 * a station's heartbeats are watched: when they stop for ``link_timeout_s`` the link is
   reported lost (the sessions go on, as a camera keeps tracking without its station), and
   found again when they come back.
@@ -209,7 +210,7 @@ class MavlinkCameras:
                  cameras: Sequence[CameraConfig], *, system_id: int = 1,
                  preset: str = "arcf-hc", overrides: Mapping[str, Any] | None = None,
                  status_interval_s: float = 0.1, heartbeat_s: float = 1.0,
-                 link_timeout_s: float = 5.0, stale_after_s: float = 1.0) -> None:
+                 link_timeout_s: float = 5.0, stale_after_s: float = 0.8) -> None:
         """``stale_after_s``: a session with no result for this long is reported stale
         (ERROR, no box), as the service reports a stream without frames; the service's own
         setting of the same name is the right value (0: only the service's notices)."""
@@ -231,6 +232,8 @@ class MavlinkCameras:
                                                source_component=ids[0], autoreconnect=True)
         self._send_lock = threading.Lock()
         self._state_lock = threading.Lock()
+        #: one thread at a time decides a camera's stale / not stale change (``_announce``)
+        self._announce_lock = threading.Lock()
         self._t0 = time.monotonic()
         self.cameras = [
             _Camera(c, mav.MAVLink(self.conn, srcSystem=system_id, srcComponent=c.component_id),
@@ -277,6 +280,8 @@ class MavlinkCameras:
                         self._statustext(cam, f"tracking ended: {result.code.value}")
                     return
                 cam.result, cam.heard_at = result, time.monotonic()
+            # a stale notice (or the first result after one): the station hears it now
+            self._announce(cam, time.monotonic())
         return seen
 
     def stale(self, cam: _Camera, now: float) -> str | None:
@@ -381,18 +386,31 @@ class MavlinkCameras:
             log.warning("mavlink: no station heartbeat for %.1f s: link lost (tracking "
                         "goes on)", now - self._last_station)
         for cam in self.cameras:
-            why = self.stale(cam, now)
-            if (why is not None) != cam.stale:  # told once per change, not per status
-                cam.stale = why is not None
-                if cam.stale:
-                    self.counts["stale"] += 1
-                    self._statustext(cam, f"tracking stale: {why}")
-                    log.warning("mavlink: camera %d stale: %s", cam.config.component_id, why)
-                elif cam.session_id is not None:  # results again (not: the session ended)
-                    self.counts["stale_ended"] += 1
-                    self._statustext(cam, "tracking resumed", mav.MAV_SEVERITY_INFO)
+            self._announce(cam, now)  # the adapter's own timeout passed, or a session ended
             if cam.status_interval_s > 0 and now >= cam.next_status:
                 cam.next_status = max(cam.next_status + cam.status_interval_s, now - 1.0)
+                self._send(cam, self._status(cam, now))
+
+    def _announce(self, cam: _Camera, now: float) -> None:
+        """Tell the station when ``cam``'s session goes stale or stops being stale: once per
+        change, a ``STATUSTEXT`` saying why and the status at once, not at its next interval
+        (unless the station turned the status off). Called by the I/O loop's tick (the
+        adapter's own timeout, a session's end) and by each result as it arrives (the
+        service's stale notice, the first result about a frame after it), whichever sees
+        the change first."""
+        with self._announce_lock:
+            why = self.stale(cam, now)
+            if (why is not None) == cam.stale:  # no change: nothing to tell
+                return
+            cam.stale = why is not None
+            if cam.stale:
+                self.counts["stale"] += 1
+                self._statustext(cam, f"tracking stale: {why}")
+                log.warning("mavlink: camera %d stale: %s", cam.config.component_id, why)
+            elif cam.session_id is not None:  # results again (not: the session ended)
+                self.counts["stale_ended"] += 1
+                self._statustext(cam, "tracking resumed", mav.MAV_SEVERITY_INFO)
+            if cam.status_interval_s > 0:
                 self._send(cam, self._status(cam, now))
 
     def _status(self, cam: _Camera, now: float | None = None) -> Any:
@@ -641,7 +659,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                     help="CAMERA_TRACKING_IMAGE_STATUS rate until a station sets one")
     ap.add_argument("--link-timeout", type=float, default=5.0,
                     help="seconds without a station heartbeat before the link counts as lost")
-    ap.add_argument("--stale-after-s", type=float, default=1.0,
+    ap.add_argument("--stale-after-s", type=float, default=0.8,
                     help="seconds without a result before a session's status leaves ACTIVE "
                     "(ERROR, no box): the service gone; use the service's stale_after_s "
                     "(default %(default)s; 0: only the service's own stale notices)")

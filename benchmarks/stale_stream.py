@@ -1,7 +1,7 @@
 """A stream that stops: how long until the service says so (its ``stale`` result), and until
 ``arcf-mavlink``'s ``CAMERA_TRACKING_IMAGE_STATUS`` leaves ACTIVE.
 
-A service (1 worker, ``stale_after_s`` as given, 1 s by default), a station publishing
+A service (1 worker, ``stale_after_s`` as given, 0.8 s by default), a station publishing
 wakeboard7's JPEG frames at ``--fps``, ``arcf-mavlink`` (its own timeout the same) on a loopback
 UDP port, and a ground station played with pymavlink that asks for the status at
 ``--status-hz`` and tracks the target's ground-truth rectangle. Then, ``--pauses`` times: two
@@ -196,7 +196,7 @@ def figures(values: list[float]) -> str:
 
 def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--stale-after-s", type=float, default=1.0)
+    ap.add_argument("--stale-after-s", type=float, default=0.8)
     ap.add_argument("--fps", type=float, default=10.0)
     ap.add_argument("--status-hz", type=float, default=10.0)
     ap.add_argument("--preset", default="bacf")

@@ -87,12 +87,14 @@ class ServiceSettings:
         "a session that produced no result for this long (its stream went quiet, or it waits "
         "for a frame that never comes) ends by itself, with a last 'stopped' result saying "
         "why (session_expired)"))
-    stale_after_s: float = field(default=1.0, metadata=_about(
+    stale_after_s: float = field(default=0.8, metadata=_about(
         "a session whose stream delivers no frame for this long says so at once: a result "
         "with status 'stale' (code no_frames, no box), repeated every stale_after_s while it "
         "lasts, so that a station stops following a box that is no longer current; the "
-        "session goes on when frames resume (session_idle_s still ends it); 0: off. Keep it "
-        "above a few frame periods of the slowest stream (1 s is 10 frames at 10 fps)"))
+        "session goes on when frames resume (session_idle_s still ends it); 0: off. The "
+        "default leaves the notice room to arrive within 1 s of the last frame (it comes "
+        "this long after the session's last result, plus tens of ms). Keep it above a few "
+        "frame periods of the slowest stream (0.8 s is 8 frames at 10 fps)"))
     client_grace_s: float = field(default=10.0, metadata=_about(
         "a session started with a client_id ends this long after that station's liveliness "
         "token disappears (unless it comes back: a reconnect)"))

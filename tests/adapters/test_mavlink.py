@@ -138,6 +138,63 @@ def test_a_stale_session_is_never_active_whoever_says_so() -> None:
                        [CameraConfig(STREAM, COMP)], stale_after_s=float("nan"))
 
 
+def test_the_status_goes_out_as_soon_as_the_session_goes_stale_or_comes_back(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A change between stale and not stale sends its STATUSTEXT and the status at once,
+    not at the status's next interval: on the service's notice as it arrives (no tick of
+    the I/O loop runs here), on the first result about a frame after it, and on the tick
+    that finds the adapter's own timeout passed. Once per change; a station that turned
+    the status off gets the STATUSTEXT only."""
+    client = _Client()
+    endpoint = MavlinkCameras(client, f"udpin:127.0.0.1:{free_port()}",  # type: ignore[arg-type]
+                              [CameraConfig(STREAM, COMP)], status_interval_s=60.0)
+    sent: list[Any] = []
+    monkeypatch.setattr(endpoint, "_send", lambda cam, message: sent.append(message))
+
+    def kinds() -> list[str]:
+        return [m.get_type() for m in sent]
+
+    try:
+        assert endpoint.stale_after_s == 0.8  # the default, as the service's
+        (cam,) = endpoint.cameras
+        cam.session_id, cam.mode = "s1", mav.CAMERA_TRACKING_MODE_RECTANGLE
+        cam.last_frame = SimpleNamespace(width=1280, height=720)  # type: ignore[assignment]
+        seen = client.callbacks["results"]
+        seen(_result("tracking", 3, track_state="tracking", confidence=0.9))
+        assert sent == []  # no change: the status waits for its interval
+        # the service's notice: the status leaves ACTIVE as it arrives
+        seen(_result("stale", 3, code="no_frames", message="no frame of stream 'cam1'"))
+        assert kinds() == ["STATUSTEXT", "CAMERA_TRACKING_IMAGE_STATUS"]
+        assert _no_box(sent[-1])
+        sent.clear()
+        seen(_result("stale", 3, code="no_frames", message="no frame of stream 'cam1'"))
+        assert sent == []  # the notice repeated: told once
+        # a result about a frame: ACTIVE again at once, with its box
+        seen(_result("tracking", 9, track_state="tracking", confidence=0.9))
+        assert kinds() == ["STATUSTEXT", "CAMERA_TRACKING_IMAGE_STATUS"]
+        assert sent[-1].tracking_status == mav.CAMERA_TRACKING_STATUS_FLAGS_ACTIVE
+        assert sent[-1].target_data == mav.CAMERA_TRACKING_TARGET_DATA_IN_STATUS
+        assert (endpoint.counts["stale"], endpoint.counts["stale_ended"]) == (1, 1)
+        # the adapter's own timeout (a clock given to the tick), the next status a minute off
+        sent.clear()
+        t = cam.heard_at
+        cam.next_status = t + 60.0
+        endpoint._tick(t + 0.7)
+        assert "CAMERA_TRACKING_IMAGE_STATUS" not in kinds()  # not stale yet, not due
+        endpoint._tick(t + 0.9)
+        statuses = [m for m in sent if m.get_type() == "CAMERA_TRACKING_IMAGE_STATUS"]
+        assert len(statuses) == 1 and _no_box(statuses[0])
+        assert endpoint.counts["stale"] == 2
+        # the station turned the status off (interval -1): the STATUSTEXT only
+        seen(_result("tracking", 10, track_state="tracking", confidence=0.9))
+        cam.status_interval_s = 0.0
+        sent.clear()
+        seen(_result("stale", 10, code="no_frames", message="no frame of stream 'cam1'"))
+        assert kinds() == ["STATUSTEXT"]
+    finally:
+        endpoint.close()
+
+
 class Station:
     """A ground station: heartbeats at 2 Hz (while ``alive``), commands, and every message
     it receives kept by type."""

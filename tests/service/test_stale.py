@@ -4,7 +4,8 @@ expiry; when frames resume, results about them resume and the notices stop; the 
 still ends a session whose frames never come back, with its usual code.
 
 What is asserted is what arrives and in which order, never how fast: the "within a second"
-is the ``stale_after_s`` setting, measured by ``benchmarks/stale_stream.py``."""
+is the ``stale_after_s`` setting (0.8 s by default), measured by
+``benchmarks/stale_stream.py``."""
 
 from __future__ import annotations
 
@@ -32,7 +33,7 @@ DEADLINE_S = 30.0
 
 @pytest.fixture(scope="module")
 def service() -> Iterator[ServiceProcess]:
-    """Stale after 1 s (the default), sessions idle for 5 s end: room for a few notices
+    """Stale after 0.8 s (the default), sessions idle for 5 s end: room for a few notices
     before the expiry."""
     svc = ServiceProcess("--session-idle-s", "5", workers=1)
     yield svc
