@@ -94,6 +94,9 @@ class StateParams:
     #: Strength from which a coasting or lost track is tracking again, in place or at a
     #: candidate of the search (hysteresis; a choice).
     resume_above: float = 0.6
+    #: Strength a place found by the search needs, on two frames in a row, for the box to
+    #: jump there (re-acquisition).
+    reacquire_above: float = 0.6
     #: "always" learns every frame (paper, release); "tracking" only while tracking.
     update_policy: UpdatePolicy = "always"
     #: Re-acquisition (:mod:`arcf.reacquire`): while not tracking, keep the last trusted model
@@ -122,6 +125,8 @@ class StateParams:
         if self.probes < 1 or not (math.isfinite(self.search_growth)
                                    and self.search_growth >= 0):
             problems.append("state.probes must be >= 1 and state.search_growth >= 0")
+        if not 0 <= self.reacquire_above <= 1:
+            problems.append("state.reacquire_above must be in [0, 1]")
         if not 0 <= self.reacquire_margin <= 1:
             problems.append("state.reacquire_margin must be in [0, 1]")
         if self.update_policy not in ("always", "tracking"):

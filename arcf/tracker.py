@@ -413,7 +413,7 @@ class ARCFTracker:
             strength = 0.0
         # the box is abandoned only where it is weaker than a coasting one, for a place
         # clearly stronger than it
-        if (best is None or strength >= policy.coast_below or best[0] < policy.resume_above
+        if (best is None or strength >= policy.coast_below or best[0] < policy.reacquire_above
                 or best[0] < strength + policy.reacquire_margin):
             state.candidate = None
             return None

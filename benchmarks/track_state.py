@@ -19,6 +19,8 @@ its state and confidence. Printed as Markdown (docs/track-state.md):
     python benchmarks/track_state.py                     # ~3 min on 2 cores
     python benchmarks/track_state.py --presets arcf-h --set state.resume_above=0.5
     python benchmarks/track_state.py --fit
+    python benchmarks/track_state.py --simulated 12   # also the 9 sequences with their
+                                                      # target covered for 12 frames
 """
 
 from __future__ import annotations
@@ -97,12 +99,24 @@ def _sequence(kind: str, name: str) -> Any:
     return seq
 
 
-def run(preset: str, kind: str, name: str, overrides: dict[str, Any]) -> Run:
+def run(preset: str, kind: str, name: str, overrides: dict[str, Any],
+        simulated: int = 0) -> Run:
+    """One preset on one sequence; with ``simulated``, its target covered for that many frames
+    from the middle (their ground truth then says: not visible)."""
     import cv2
 
     import arcf
 
     seq = _sequence(kind, name)
+    groundtruth = np.array(seq.groundtruth, dtype=float)
+    if simulated:
+        from reacquire import occluded_frames  # benchmarks/reacquire.py, beside this script
+
+        start = len(seq.frames) // 2
+        frames = occluded_frames(seq.frames, groundtruth.copy(), start, simulated)
+        groundtruth[start:start + simulated] = np.nan
+    else:
+        frames = (cv2.imread(str(p), cv2.IMREAD_COLOR) for p in seq.frames)
     tracker = arcf.create_tracker(preset, **overrides)
     features: list[tuple[float, ...]] = [(np.nan,) * len(FEATURES)]
     confidence = tracker._monitor.confidence
@@ -114,8 +128,7 @@ def run(preset: str, kind: str, name: str, overrides: dict[str, Any]) -> Run:
 
     tracker._monitor.confidence = recording  # type: ignore[method-assign]
     boxes, state, conf, reacq, secs = [], [], [], [], []
-    for i, path in enumerate(seq.frames):
-        frame = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    for i, frame in enumerate(frames):
         t0 = time.perf_counter()
         r = tracker.init(frame, seq.init_box) if i == 0 else tracker.update(frame)
         secs.append(time.perf_counter() - t0)
@@ -123,21 +136,26 @@ def run(preset: str, kind: str, name: str, overrides: dict[str, Any]) -> Run:
         state.append(STATE_CODES[r.state.value])
         conf.append(r.confidence)
         reacq.append(r.reacquired)
-    return Run(preset, name, kind == "clip", np.array(boxes, float), seq.groundtruth,
+    return Run(preset, name + (f"+{simulated}" if simulated else ""), kind == "clip",
+               np.array(boxes, float), groundtruth,
                np.array(state), np.array(conf), np.array(features, float), np.array(reacq),
                np.array(secs))
 
 
-def all_runs(presets: list[str], overrides: dict[str, Any], jobs: int) -> list[Run]:
+def all_runs(presets: list[str], overrides: dict[str, Any], jobs: int,
+             simulated: int = 0) -> list[Run]:
+    """Every preset on the shared sequences and the clips (``simulated``: the shared
+    sequences only, each with its target covered)."""
     from arcf.eval import load_dataset
 
     todo = [(p, ds, s.name) for p in presets for ds in DATASETS
             if (data_root() / ds).is_dir() for s in load_dataset(ds)]
-    todo += [(p, "clip", c) for p in presets for c in CLIPS
-             if (data_root() / "occlusions" / c).is_dir()]
+    if not simulated:
+        todo += [(p, "clip", c) for p in presets for c in CLIPS
+                 if (data_root() / "occlusions" / c).is_dir()]
     with ProcessPoolExecutor(jobs) as pool:
-        return list(pool.map(run, *zip(*todo, strict=True),
-                             [overrides] * len(todo)))
+        return list(pool.map(run, *zip(*todo, strict=True), [overrides] * len(todo),
+                             [simulated] * len(todo)))
 
 
 # ------------------------------------------------------------------------------ the goals
@@ -293,18 +311,40 @@ def report(runs: list[Run], plain: list[Run], args: argparse.Namespace) -> None:
         print("\n".join(fit(runs)))
 
 
+def simulated_report(runs: list[Run], length: int) -> None:
+    """Goals 1-3 on the shared sequences with their target covered (a second set of
+    episodes, simulated: the target moves on under a patch of the frame's own texture)."""
+    print(f"\nThe 9 shared sequences with the target covered for {length} frames from the "
+          "middle (`benchmarks/reacquire.py`'s simulated occlusion):\n")
+    print("| preset | losses flagged within 3 frames | found again within 10 frames | "
+          "hidden frames claimed tracking | not tracking per 1,000 good frames |")
+    print("| --- | --- | --- | --- | --- |")
+    for preset in sorted({r.preset for r in runs}):
+        mine = [r for r in runs if r.preset == preset]
+        eps = [e for r in mine for e in occlusion_episodes(r)]
+        fa, good = false_alarms(mine)
+        print(f"| `{preset}` | {sum(e.flagged for e in eps)}/{len(eps)} | "
+              f"{sum(e.found for e in eps)}/{len(eps)} | {sum(e.false_claims for e in eps)} | "
+              f"{1000 * fa / max(good, 1):.1f} ({fa}/{good}) |")
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--presets", type=lambda s: s.split(","), default=list(PRESETS))
     ap.add_argument("--set", action="append", type=parse_override, metavar="KEY=VALUE",
                     help="override a parameter of every preset, e.g. --set state.probes=3")
     ap.add_argument("--fit", action="store_true", help="fit the confidence model too")
+    ap.add_argument("--simulated", type=int, default=0, metavar="N",
+                    help="also cover the target of each shared sequence for N frames")
     ap.add_argument("--jobs", type=int, default=2)
     args = ap.parse_args(argv)
     overrides = dict(args.set or [])
     runs = all_runs(args.presets, overrides, args.jobs)
     plain = all_runs(args.presets, {**overrides, "state.reacquire": False}, args.jobs)
     report(runs, plain, args)
+    if args.simulated:
+        simulated_report(all_runs(args.presets, overrides, args.jobs, args.simulated),
+                         args.simulated)
     return 0
 
 
