@@ -25,8 +25,8 @@ needs_data = pytest.mark.skipif(not BOAT1.is_dir(), reason="needs ../shared/data
 def test_parameters_are_checked() -> None:
     with pytest.raises(InvalidParameterError, match="probes"):
         StateParams(probes=0)
-    with pytest.raises(InvalidParameterError, match="search_growth"):
-        StateParams(search_growth=-1.0)
+    with pytest.raises(InvalidParameterError, match="reacquire_above"):
+        StateParams(reacquire_above=1.5)
     assert arcf.create_tracker("bacf", state={"reacquire": True}).params.state.reacquire
 
 
