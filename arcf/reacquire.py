@@ -37,6 +37,10 @@ Point = tuple[float, float]
 #: The template's shorter side after shrinking, pixels: enough detail to tell a shape, few
 #: enough pixels for one pass over the frame to cost about a tracked window.
 TEMPLATE_SIDE = 12
+#: The most pixels of a shrunk frame the template is matched over: a frame larger than this
+#: is shrunk further (and the template with it), so that a lost frame's search costs about the
+#: same on a 4K frame as on a 720p one (1280 x 720 shrunk 2.4 times).
+MAX_SEARCH_PIXELS = 160_000
 #: Trusted frames between two refreshes of the kept template, and how many are kept: the one
 #: used after a loss is the oldest, taken before any slow onset of the occlusion.
 TEMPLATE_EVERY = 5
@@ -60,12 +64,17 @@ class TargetTemplate:
     shrink: float
 
     @classmethod
-    def cut(cls, image: np.ndarray, centre: Point, size_hw: tuple[float, float]) -> TargetTemplate:
+    def cut(cls, image: np.ndarray, centre: Point, size_hw: tuple[float, float],
+            search: bool = True) -> TargetTemplate:
         """The box of ``size_hw`` source pixels around ``centre``, clipped to the frame and
-        shrunk so that its shorter side is about ``TEMPLATE_SIDE`` pixels (never enlarged)."""
+        shrunk so that its shorter side is about ``TEMPLATE_SIDE`` pixels (never enlarged);
+        for a template that will search frames (``search``), more if the frame shrunk as much
+        would exceed ``MAX_SEARCH_PIXELS``."""
         rows, cols = image.shape[:2]
         h, w = max(size_hw[0], 2.0), max(size_hw[1], 2.0)
         shrink = max(1.0, min(h, w) / TEMPLATE_SIDE)
+        if search:
+            shrink = max(shrink, math.sqrt(rows * cols / MAX_SEARCH_PIXELS))
         r0 = int(np.clip(round(centre[0] - 1 - h / 2), 0, rows - 2))
         c0 = int(np.clip(round(centre[1] - 1 - w / 2), 0, cols - 2))
         r1 = int(np.clip(round(centre[0] - 1 + h / 2), r0 + 2, rows))

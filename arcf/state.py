@@ -172,19 +172,25 @@ class TrackMonitor:
     #: (psr, peak, aberrance) of the recent trusted frames, oldest first
     _refs: deque[tuple[float, float, float]] = field(default_factory=deque)
     _since_reset: int = 0
+    _medians: tuple[float, float, float] | None = None
 
     def reset(self) -> Assessment:
         """A new box was given: the track starts ``tracking``, and the next frames set the
         references."""
         self.state, self.coasting_for = TrackState.TRACKING, 0
         self._refs = deque(maxlen=self.params.reference_frames)
+        self._medians = None
         self._since_reset = 0
         return Assessment(TrackState.TRACKING, 1.0, 0.0, 0.0)
 
     def references(self) -> tuple[float, float, float]:
-        """The median PSR, peak and aberrance of the recent trusted frames (NaN before any)."""
-        return (_median(r[0] for r in self._refs), _median(r[1] for r in self._refs),
-                _median(r[2] for r in self._refs))
+        """The median PSR, peak and aberrance of the recent trusted frames (NaN before any);
+        computed once per new reference."""
+        if self._medians is None:
+            self._medians = (_median(r[0] for r in self._refs),
+                             _median(r[1] for r in self._refs),
+                             _median(r[2] for r in self._refs))
+        return self._medians
 
     def ln_strength(self, peak: float, psr: float) -> float:
         """ln of PSR x peak over their recent medians (0 before any reference: a frame is
@@ -253,4 +259,5 @@ class TrackMonitor:
         finite = all(map(math.isfinite, (peak, psr, aberrance)))
         if finite and (state is TrackState.TRACKING or self._since_reset <= MIN_REFERENCES):
             self._refs.append((psr, peak, aberrance))
+            self._medians = None
         return Assessment(state, strength, ln_s, ln_ab)

@@ -300,10 +300,10 @@ class ARCFTracker:
             self._layout, self._state = previous
             raise
         self._monitor.reset()
-        state.initial_look = TargetTemplate.cut(image, state.pos, self._size_hw())
+        state.initial_look = TargetTemplate.cut(image, state.pos, self._size_hw(), search=False)
         if self.params.state.reacquire:
             state.tracked = (state.pos, state.scale_factor)
-            state.templates.append(state.initial_look)
+            state.templates.append(TargetTemplate.cut(image, state.pos, self._size_hw()))
         return TrackResult(
             box=self._box(),
             peak=float(first.max()),
