@@ -1,8 +1,8 @@
 """Re-acquisition (``state.reacquire``): what it costs and what it changes on real sequences.
 
 Every preset runs every shared sequence twice, as the toolkit scores it (one-pass evaluation):
-plain (the preset as it is, the paper's tracker) and with re-acquisition on (no learning while
-lost, extra windows probed around where the target was last tracked). Printed, per preset and
+plain (re-acquisition off: the paper's tracker) and as shipped, with re-acquisition (no learning
+while not tracking, a whole-frame search once lost; ``arcf.reacquire``). Printed, per preset and
 sequence:
 
 * the success AUC and precision at 20 px of both runs and their difference (the issue's bound:
@@ -17,12 +17,12 @@ sequence:
 None of the shared sequences has a frame without a visible target, so ``--occlusion N`` also
 covers the target of every sequence for N frames from its middle with the frame's own texture
 from above it (a simulated full occlusion on real video: the target is hidden and moves on
-under it) and scores both runs on those. ``--figure PATH`` draws the signals of ARCF-HC around
-such an occlusion of truck4_2, plain and with re-acquisition (the README's picture).
+under it) and scores both runs on those. ``--figure PATH`` draws the signals of ARCF-H on
+the real occlusion clip group2_1, plain and with re-acquisition (docs/track-state.md's picture).
 
     python benchmarks/reacquire.py                  # ~1 min on 2 cores
     python benchmarks/reacquire.py --policy tracking --occlusion 12
-    python benchmarks/reacquire.py --figure docs/img/reacquisition_truck4_2.png
+    python benchmarks/reacquire.py --figure docs/img/reacquisition_group2_1.png
 """
 
 from __future__ import annotations
@@ -118,7 +118,8 @@ def run_pair(preset: str, dataset: str, name: str, policy: str, occlusion: int =
 
     (seq,) = load_dataset(dataset, sequences=[name])
     invisible = int((~valid_groundtruth(np.asarray(seq.groundtruth))).sum()) or occlusion
-    plain = _run(preset, seq, {"state": {"update_policy": policy}}, occlusion)
+    plain = _run(preset, seq, {"state": {"reacquire": False, "update_policy": policy}},
+                 occlusion)
     reacq = _run(preset, seq, {"state": {"reacquire": True, "update_policy": policy}},
                  occlusion)
     return Pair(preset, name, invisible, plain, reacq)
@@ -153,7 +154,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                     "the paper's, except while lost)")
     ap.add_argument("--occlusion", type=int, default=0, metavar="N",
                     help="also run every sequence with its target covered for N frames")
-    ap.add_argument("--figure", type=Path, help="draw the README's figure there and stop")
+    ap.add_argument("--figure", type=Path, help="draw docs/track-state.md's figure there and "
+                    "stop")
     ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
     args = ap.parse_args(argv)
     if args.figure:
@@ -188,27 +190,29 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def figure(path: Path) -> Path:
-    """ARCF-HC on truck4_2 with its target covered for frames 100-111, learning only while
-    tracking: plain, and with re-acquisition."""
+    """ARCF-H on the real occlusion clip group2_1: plain (re-acquisition off) and as shipped."""
+    import cv2
+
     import arcf
-    from arcf.eval import load_dataset
+    from arcf.eval.datasets import load_sequence
     from arcf.eval.metrics import overlaps
     from arcf.eval.report import plot_track_signals
 
-    (seq,) = load_dataset("uav123_10fps", sequences=["truck4_2"])
+    folder = data_root() / "occlusions" / "group2_1"
+    seq = load_sequence(folder / "img", folder / "groundtruth.txt", "group2_1")
     gt = np.asarray(seq.groundtruth)
-    start, length = 100, 12
+    hidden = np.flatnonzero(~np.all(np.isfinite(gt), axis=1))
     runs, overlap = {}, {}
     for label, reacquire in (("plain", False), ("re-acquisition", True)):
-        tracker = arcf.create_tracker(
-            "arcf-hc", state={"update_policy": "tracking", "reacquire": reacquire})
-        run = arcf.run_sequence(tracker, occluded_frames(seq.frames, gt, start, length),
-                                seq.init_box)
-        runs[label], overlap[label] = run.results, overlaps(run.boxes, gt)
+        tracker = arcf.create_tracker("arcf-h", state={"reacquire": reacquire})
+        frames = (cv2.imread(str(p), cv2.IMREAD_COLOR) for p in seq.frames)
+        run = arcf.run_sequence(tracker, frames, seq.init_box)
+        runs[label], overlap[label] = run.results, np.nan_to_num(overlaps(run.boxes, gt))
     return plot_track_signals(
-        runs, overlap, path, span=(80, 160), shade=(start, start + length),
-        title="ARCF-HC on truck4_2 (UAV123@10fps), target covered in frames 100-111 (grey), "
-              "learning only while tracking")
+        runs, overlap, path, span=(0, len(seq.frames)),
+        shade=(int(hidden[0]), int(hidden[-1]) + 1),
+        title="ARCF-H on group2_1 (UAV123@10fps), the target hidden in frames "
+              f"{hidden[0]}-{hidden[-1]} (grey)")
 
 
 if __name__ == "__main__":
