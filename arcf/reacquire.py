@@ -10,17 +10,17 @@ target. Once the track is ``lost``, every frame:
    frame well before the loss, is matched over the **whole frame** at a coarse resolution
    (normalised cross-correlation, OpenCV's ``matchTemplate``); the best few places, apart
    from each other, are candidates. One pass over a frame shrunk so that the template is
-   about ``TEMPLATE_SIDE`` pixels: a bounded cost whatever the frame's size, and no place of
-   the frame is out of reach.
-2. **Verify** (the tracker's ``_probe``): at each candidate, one window at the track's scale
-   is correlated with the kept filter and read like a tracked frame, against the references of
-   the frames before the loss (:meth:`arcf.state.TrackMonitor.probe_confidence`). A template
-   is easily fooled by anything of the same shape and brightness; the filter, learnt on the
-   target and its background, is not.
+   about ``TEMPLATE_SIDE`` pixels, and the frame at most ``MAX_SEARCH_PIXELS``: a bounded
+   cost whatever the frame's size, and no place of the frame is out of reach.
+2. **Verify** (the tracker's ``_probe``): at each candidate, and where the target was last
+   tracked, one window at the track's scale is correlated with the kept filter and its
+   strength read against the references of the frames before the loss
+   (:meth:`arcf.state.TrackMonitor.probe`). A template is easily fooled by anything of the
+   same shape and brightness; the filter, learnt on the target and its background, is not.
 
-A candidate wins when its confidence reaches the state machine's ``resume_above`` and beats
-the box's own by ``reacquire_margin``: the box jumps there, the track is ``tracking`` again and
-the result says ``reacquired``.
+A place wins when its strength reaches ``reacquire_above`` on two frames in a row, the box's
+own is below ``coast_below`` and the place beats it by ``reacquire_margin``: the box jumps
+there, the track is ``tracking`` again and the result says ``reacquired``.
 """
 
 from __future__ import annotations

@@ -318,8 +318,9 @@ class ARCFTracker:
 
     def update(self, frame: np.ndarray) -> TrackResult:
         """Track into the next frame: detect, measure the aberrance, judge the track's state,
-        search when lost (re-acquisition on), train (every frame, or only while tracking:
-        ``params.state.update_policy``)."""
+        search the frame when lost (re-acquisition on), train (while tracking with
+        re-acquisition on; else every frame, or only while tracking:
+        ``params.state.update_policy``), and say how confident the box is."""
         if self._state is None:
             raise NotInitializedError("call init(frame, box) before update(frame)")
         state, layout, policy = self.state, self.layout, self.params.state
