@@ -90,10 +90,11 @@ class TargetTemplate:
         the frame or of one flat grey)."""
         rows, cols = image.shape[:2]
         h, w = max(size_hw[0], 2.0), max(size_hw[1], 2.0)
-        r0 = int(np.clip(round(centre[0] - 1 - h / 2), 0, rows))
-        c0 = int(np.clip(round(centre[1] - 1 - w / 2), 0, cols))
-        r1 = int(np.clip(round(centre[0] - 1 + h / 2), 0, rows))
-        c1 = int(np.clip(round(centre[1] - 1 + w / 2), 0, cols))
+        # plain ints (every frame: NumPy's scalar clipping would cost more than the NCC)
+        r0 = min(max(round(centre[0] - 1 - h / 2), 0), rows)
+        c0 = min(max(round(centre[1] - 1 - w / 2), 0), cols)
+        r1 = min(max(round(centre[0] - 1 + h / 2), 0), rows)
+        c1 = min(max(round(centre[1] - 1 + w / 2), 0), cols)
         if r1 - r0 < 2 or c1 - c0 < 2:
             return 0.0
         th, tw = self.pixels.shape
