@@ -69,10 +69,11 @@ class TrackResult:
     is the same difference measured as the release does (largest singular value), comparable
     with the published ``map_diff`` files. Both are 0 on the first frame.
 
-    ``confidence`` is the calibrated estimate, from those signals, that the box overlaps the
-    target at all (IoU > 0), and ``state`` what the tracker makes of it: ``tracking``,
-    ``coasting`` (probably hidden: the box is a guess) or ``lost`` (:mod:`arcf.state`). The
-    first frame of a (re)initialisation is ``tracking`` with confidence 1: its box was given.
+    ``state`` is what the tracker makes of its response against the track's recent trusted
+    frames: ``tracking``, ``coasting`` (probably hidden: the box is a guess) or ``lost``
+    (:mod:`arcf.state`); ``confidence`` the calibrated estimate that the box overlaps the
+    target at all (IoU > 0), from those signals, the state and the box's look. The first frame
+    of a (re)initialisation is ``tracking`` with confidence 1: its box was given.
     """
 
     box: Box
