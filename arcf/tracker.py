@@ -428,7 +428,7 @@ class ARCFTracker:
         state.m_prev = fftshift2d(response)
         state.p_prev = peak_index(state.m_prev)
         self._monitor.resume()
-        return psr, math.log(s), 0.0
+        return psr, math.log(max(s, 1e-6)), 0.0  # (reacquire_above 0 admits strength 0)
 
     def _probe(
         self, image: np.ndarray, centre: tuple[float, float], g_f: np.ndarray
