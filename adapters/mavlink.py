@@ -28,6 +28,20 @@ for each configured stream of the service:
   reported lost (the sessions go on, as a camera keeps tracking without its station), and
   found again when they come back.
 
+Hardened like the service, for a link anyone in radio range (or on the network) can reach:
+
+* the table of recent commands (for retransmissions) keeps ``DONE_KEPT_S`` seconds and at
+  most ``DONE_MAX`` entries, whatever is sent;
+* listening (``udpin``), it answers at most ``MAX_PEERS`` addresses: those that sent a
+  station heartbeat first, then the most recently heard, each forgotten ``link_timeout_s``
+  after its last packet (pymavlink would otherwise send every message to every source
+  port it ever heard);
+* a frame's size is read from its header (JPEG / PNG) or its declaration, never by
+  decoding it, and a size above ``max_pixels`` is refused;
+* with a signing key (``--signing-key``), every message sent is signed (MAVLink 2 signing)
+  and only correctly signed messages are accepted: a station must then hold the key to
+  command the camera. Rejected messages are counted (``unsigned``).
+
 MAVLink 2 only (these message ids need it): ``MAVLINK20=1`` is set before pymavlink loads.
 """
 
@@ -53,7 +67,7 @@ from pymavlink import mavutil
 
 from schemas import ErrorCode, Frame, Result, ResultStatus, TrackState
 from service.client import ServiceError, TrackingClient
-from service.decoding import decode_compressed
+from service.imagecheck import image_size
 
 from ._command import (
     add_override_arguments,
@@ -118,12 +132,20 @@ class Denied(Exception):
     """A command that cannot be carried out as given (``MAV_RESULT_DENIED``)."""
 
 
-def frame_size(frame: Frame) -> tuple[int, int]:
-    """(width, height) of a stream's frame: declared, or read from the image itself."""
+def frame_size(frame: Frame, max_pixels: int = 4096 * 2160) -> tuple[int, int]:
+    """(width, height) of a stream's frame: declared, or read from its JPEG / PNG header
+    (nothing is decoded). Raises ``ValueError`` for a size that cannot be read or is above
+    ``max_pixels`` (the service's default limit)."""
     if frame.width and frame.height:
-        return frame.width, frame.height
-    image = decode_compressed(frame.payload)
-    return image.shape[1], image.shape[0]
+        size = (frame.width, frame.height)
+    else:
+        read = image_size(frame.payload) if frame.encoding.value in ("jpeg", "png") else None
+        if read is None:
+            raise ValueError(f"no size in a {frame.encoding.value} frame's header")
+        size = read
+    if size[0] * size[1] > max_pixels:
+        raise ValueError(f"{size[0]}x{size[1]} is above {max_pixels} pixels")
+    return size
 
 
 def rectangle_box(top_x: float, top_y: float, bottom_x: float, bottom_y: float,
@@ -187,8 +209,13 @@ def whole(value: float) -> int | None:
 
 
 #: how long a completed command's result is kept for its retransmissions (COMMAND_LONG with
-#: ``confirmation`` > 0), which get the same acknowledgement instead of a second execution
+#: ``confirmation`` > 0), which get the same acknowledgement instead of a second execution,
+#: and the most results kept (the oldest go first): a station retransmits its last command,
+#: not the 257th before it
 DONE_KEPT_S = 5.0
+DONE_MAX = 256
+#: the most addresses a listening (udpin) link sends to
+MAX_PEERS = 8
 
 
 def _padded(text: str, size: int) -> list[int]:
@@ -210,10 +237,15 @@ class MavlinkCameras:
                  cameras: Sequence[CameraConfig], *, system_id: int = 1,
                  preset: str = "arcf-hc", overrides: Mapping[str, Any] | None = None,
                  status_interval_s: float = 0.1, heartbeat_s: float = 1.0,
-                 link_timeout_s: float = 5.0, stale_after_s: float = 0.8) -> None:
+                 link_timeout_s: float = 5.0, stale_after_s: float = 0.8,
+                 signing_key: bytes | None = None, max_pixels: int = 4096 * 2160) -> None:
         """``stale_after_s``: a session with no result for this long is reported stale
         (ERROR, no box), as the service reports a stream without frames; the service's own
-        setting of the same name is the right value (0: only the service's notices)."""
+        setting of the same name is the right value (0: only the service's notices).
+        ``signing_key``: 32 bytes of MAVLink 2 signing secret (sign everything, accept only
+        signed messages). ``max_pixels``: the largest frame a command is carried out on."""
+        if signing_key is not None and len(signing_key) != 32:
+            raise ValueError(f"a MAVLink signing key is 32 bytes, got {len(signing_key)}")
         if not cameras:
             raise ValueError("at least one camera (stream) is needed")
         if not (stale_after_s >= 0 and math.isfinite(stale_after_s)):
@@ -228,8 +260,12 @@ class MavlinkCameras:
         self.link_timeout_s = link_timeout_s
         self.stale_after_s = stale_after_s
         self.counts: Counter[str] = Counter()
+        self.max_pixels = max_pixels
         self.conn = mavutil.mavlink_connection(connection, source_system=system_id,
-                                               source_component=ids[0], autoreconnect=True)
+                                               source_component=ids[0], autoreconnect=True,
+                                               udp_timeout=link_timeout_s)
+        #: listening: addresses that sent a station heartbeat (kept first), newest last
+        self._stations: dict[Any, None] = {}
         self._send_lock = threading.Lock()
         self._state_lock = threading.Lock()
         #: one thread at a time decides a camera's stale / not stale change (``_announce``)
@@ -240,6 +276,11 @@ class MavlinkCameras:
                     number=i + 1, status_interval_s=status_interval_s)
             for i, c in enumerate(cameras)]
         self.conn.mav.robust_parsing = True  # bad bytes come back as BAD_DATA, counted
+        self.signed = signing_key is not None
+        if signing_key is not None:
+            self.conn.setup_signing(signing_key, sign_outgoing=True)
+            for cam in self.cameras:  # each camera's encoder signs what it sends
+                cam.encoder.signing = self.conn.mav.signing
         #: frame size per stream, read at the last track command (for frames that do not
         #: declare theirs)
         self._sizes: dict[str, tuple[int, int]] = {}
@@ -447,9 +488,9 @@ class MavlinkCameras:
             frame = cam.last_frame
         stream = cam.config.stream_id
         if frame is not None and stream not in self._sizes:
-            # once per stream: a JPEG's size is in the image (a few ms); unreadable: 0 x 0
+            # once per stream, from the image's header; unreadable or too large: 0 x 0
             with contextlib.suppress(ValueError):
-                self._sizes[stream] = frame_size(frame)
+                self._sizes[stream] = frame_size(frame, self.max_pixels)
         w, h = self._sizes.get(stream, (0, 0))
         if frame is not None and frame.width and frame.height:
             w, h = frame.width, frame.height
@@ -461,10 +502,40 @@ class MavlinkCameras:
             | mav.CAMERA_CAP_FLAGS_HAS_TRACKING_RECTANGLE, 0, b"", 0, 0)
 
     # ------------------------------------------------------------------ receiving
+    def _trim_peers(self, station: bool) -> None:
+        """A listening link's peers: the sender of the last packet, if it was a station's
+        heartbeat, joins the stations; beyond ``MAX_PEERS`` addresses, the least recently
+        heard that are not stations are forgotten (then the oldest stations). pymavlink
+        keeps the addresses (``clients``, with when each was last heard) but not which one
+        sent a message: that is the one heard last, as each message comes from the datagram
+        just read."""
+        clients = getattr(self.conn, "clients", None)  # pymavlink's mavudp, listening
+        alive = getattr(self.conn, "clients_last_alive", None)
+        if not isinstance(clients, set) or not isinstance(alive, dict):
+            return
+        if station and alive:  # the sender of the last datagram: the one heard last
+            sender = max(alive, key=alive.__getitem__)
+            self._stations.pop(sender, None)
+            self._stations[sender] = None
+            while len(self._stations) > MAX_PEERS:
+                del self._stations[next(iter(self._stations))]
+        if len(clients) <= MAX_PEERS:
+            return
+        keep = sorted(clients, key=lambda a: (a in self._stations, alive.get(a, 0.0)),
+                      reverse=True)[:MAX_PEERS]
+        for address in clients - set(keep):
+            clients.discard(address)
+            alive.pop(address, None)
+            self.counts["peers_forgotten"] += 1
+
     def _receive(self, msg: Any) -> None:
         kind = msg.get_type()
+        self._trim_peers(kind == "HEARTBEAT" and getattr(msg, "type", None) != mav.MAV_TYPE_CAMERA)
         if kind == "BAD_DATA":
-            self.counts["malformed"] += 1
+            if self.signed and "signature" in str(getattr(msg, "reason", "")):
+                self.counts["unsigned"] += 1
+            else:
+                self.counts["malformed"] += 1
             return
         if msg.get_srcSystem() == self.conn.source_system and \
                 msg.get_srcComponent() in self._by_component:
@@ -540,13 +611,13 @@ class MavlinkCameras:
             key = self._key(cam, msg)
             if key in self._pending:
                 return  # a retransmission of a command still being carried out
-            if getattr(msg, "confirmation", 0) > 0:  # a retransmission: its ack got lost?
-                now = time.monotonic()
-                self._done = {k: v for k, v in self._done.items() if now - v[0] < DONE_KEPT_S}
-                if key in self._done:
-                    self.counts["retransmissions"] += 1
-                    self._ack(cam, msg, self._done[key][1])
-                    return
+            done = self._done.get(key)
+            # a retransmission (confirmation > 0) of a command done: its ack got lost?
+            if (getattr(msg, "confirmation", 0) > 0 and done is not None
+                    and time.monotonic() - done[0] < DONE_KEPT_S):
+                self.counts["retransmissions"] += 1
+                self._ack(cam, msg, done[1])
+                return
             try:
                 self._commands.put_nowait((cam, msg))
                 self._pending.add(key)
@@ -569,8 +640,20 @@ class MavlinkCameras:
                 result, reason = mav.MAV_RESULT_FAILED, f"internal error: {exc}"
             key = self._key(cam, msg)
             self._pending.discard(key)
-            self._done[key] = (time.monotonic(), result)
+            self._remember(key, result)
             self._ack(cam, msg, result, reason)
+
+    def _remember(self, key: tuple[int, int, tuple[str, ...]], result: int) -> None:
+        """Keep a command's result for its retransmissions: at most ``DONE_MAX`` results, none
+        older than ``DONE_KEPT_S`` (the table is in completion order, oldest first)."""
+        now = time.monotonic()
+        self._done.pop(key, None)
+        self._done[key] = (now, result)
+        while self._done:
+            oldest = next(iter(self._done))
+            if len(self._done) <= DONE_MAX and now - self._done[oldest][0] < DONE_KEPT_S:
+                break
+            del self._done[oldest]
 
     @staticmethod
     def _key(cam: _Camera, msg: Any) -> tuple[int, int, tuple[str, ...]]:
@@ -596,9 +679,9 @@ class MavlinkCameras:
         if frame is None:
             return mav.MAV_RESULT_DENIED, "no frames yet on this stream"
         try:
-            size = frame_size(frame)
-        except Exception as exc:
-            return mav.MAV_RESULT_DENIED, f"latest frame unreadable: {exc}"
+            size = frame_size(frame, self.max_pixels)
+        except ValueError as exc:
+            return mav.MAV_RESULT_DENIED, f"latest frame unusable: {exc}"
         self._sizes[stream] = size
         try:
             if msg.command == mav.MAV_CMD_CAMERA_TRACK_RECTANGLE:
@@ -641,6 +724,18 @@ def _camera(text: str, index: int) -> CameraConfig:
     return CameraConfig(stream, int(comp) if comp else FIRST_CAMERA_COMPONENT + index)
 
 
+def _signing_key(text: str) -> bytes:
+    """A signing secret from 64 hex digits, or from a file holding them (``@path``): kept
+    out of the command line, where any user of the machine can read it."""
+    if text.startswith("@"):
+        with open(text[1:]) as f:
+            text = f.read()
+    key = bytes.fromhex(text.strip())
+    if len(key) != 32:
+        raise ValueError(f"a MAVLink signing key is 32 bytes (64 hex digits), got {len(key)}")
+    return key
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(
         prog="arcf-mavlink",
@@ -663,8 +758,19 @@ def main(argv: Sequence[str] | None = None) -> int:
                     help="seconds without a result before a session's status leaves ACTIVE "
                     "(ERROR, no box): the service gone; use the service's stale_after_s "
                     "(default %(default)s; 0: only the service's own stale notices)")
+    ap.add_argument("--signing-key", metavar="HEX|@FILE",
+                    help="MAVLink 2 signing: the 32-byte secret as 64 hex digits, or @FILE "
+                    "holding them; everything sent is signed and only signed messages are "
+                    "accepted (a station must hold the same key). Default: no signing")
+    ap.add_argument("--max-pixels", type=int, default=4096 * 2160,
+                    help="largest frame (from its header or declaration) a track command is "
+                    "carried out on (default: %(default)s, DCI 4K)")
     args = ap.parse_args(argv)
     overrides = parse_overrides(ap, args.set)
+    try:
+        signing_key = _signing_key(args.signing_key) if args.signing_key else None
+    except (OSError, ValueError) as exc:
+        ap.error(f"--signing-key: {exc}")
     cameras = [_camera(c, i) for i, c in enumerate(args.camera)]
     stop = prepare()
     with service_client(args) as client:
@@ -676,7 +782,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         endpoint = MavlinkCameras(
             client, args.mavlink, cameras, system_id=args.system_id, preset=args.preset,
             overrides=overrides, status_interval_s=1.0 / args.status_hz if args.status_hz else 0,
-            link_timeout_s=args.link_timeout, stale_after_s=args.stale_after_s).start()
+            link_timeout_s=args.link_timeout, stale_after_s=args.stale_after_s,
+            signing_key=signing_key, max_pixels=args.max_pixels).start()
         print(f"arcf-mavlink: {len(cameras)} camera(s) on {args.mavlink}: "
               + ", ".join(f"{c.stream_id} as {args.system_id}/{c.component_id}"
                           for c in cameras), flush=True)

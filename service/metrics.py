@@ -30,6 +30,12 @@ VIDEO_RESYNCS = Counter(
     "Video streams resynchronised at their next keyframe, by cause (gap, corrupt, oversized)",
     ["cause"],
 )
+SHED = Counter(
+    "arcf_sessions_shed_total",
+    "Sessions a worker ended because it was over worker_budget while another stream's frames "
+    "waited or were dropped: the heaviest, by what cost most (tracking, or decoding its stream)",
+    ["cause"],
+)
 RESULTS = Counter("arcf_results_published_total", "Result messages published")
 STALE = Counter(
     "arcf_sessions_stale_total",

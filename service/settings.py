@@ -69,9 +69,11 @@ class ServiceSettings:
     max_sessions_per_stream: int = field(default=16,
                                          metadata=_about("most sessions on one stream"))
     max_sessions: int = field(default=256, metadata=_about("most sessions on this instance"))
-    max_pixels: int = field(default=40_000_000, metadata=_about(
-        "largest image in pixels, as its header declares it (checked before decoding: a "
-        "decompression bomb is refused without allocating anything; 8K is 33.2 MP)"))
+    max_pixels: int = field(default=4096 * 2160, metadata=_about(
+        "largest image in pixels, as its header or parameter set declares it (checked "
+        "before a picture is allocated: a decompression bomb costs nothing). The default is "
+        "DCI 4K (8.8 MP), the most a drone camera sends; raise it for larger pictures (8K UHD "
+        "is 33.2 MP): each one costs its decoding and conversion in full"))
     max_stream_fps: float = field(default=60.0, metadata=_about(
         "most frames/s accepted from one stream (sustained, one second of burst); the excess "
         "is refused and counted, so one flooding station cannot starve the others"))
@@ -101,6 +103,14 @@ class ServiceSettings:
     session_budget_ms: float = field(default=250.0, metadata=_about(
         "a session whose frames take longer than this on average (over its last frames) "
         "ends with limit_exceeded: one session must not starve the others on its worker"))
+    worker_budget: float = field(default=0.9, metadata=_about(
+        "share of its core above which a worker sheds load. Busier than this for 2 s while "
+        "a stream's frames waited over 100 ms or were dropped, and with a stream whose turn "
+        "(its decoding and tracking per frame served) costs twice the starved one's, it "
+        "ends that stream's costliest session, or all its sessions when its decoding costs "
+        "more than any of them (limit_exceeded, counted in arcf_sessions_shed_total); one "
+        "per 2 s. Among equals nothing is shed: each stream keeps its newest frames and "
+        "drops the rest (counted); a stream alone on its worker may use all of it. 0: off"))
     metrics_host: str = field(default="127.0.0.1",
                               metadata=_about("Prometheus endpoint address"))
     metrics_port: int = field(default=9464, metadata=_about(
@@ -145,6 +155,9 @@ class ServiceSettings:
                 and self.session_budget_ms > 0):
             raise ValueError("session_idle_s and session_budget_ms must be > 0, "
                              "client_grace_s >= 0")
+        if not 0 <= self.worker_budget <= 1:
+            raise ValueError(f"worker_budget must be within [0, 1] (0: off), got "
+                             f"{self.worker_budget!r}")
         if not (self.stale_after_s == 0 or 0.1 <= self.stale_after_s <= 3600):
             # below 0.1 s a stream's own frame interval (and its jitter) would look stale
             raise ValueError("stale_after_s must be 0 (off) or within [0.1, 3600] s, got "

@@ -13,7 +13,14 @@ state for one stream (PyAV, which ships FFmpeg in its wheels):
   would otherwise hand out a smeared picture) drops the decoder state and waits for the next
   keyframe:
   no box is ever computed on a frame decoded from a broken reference;
-* every outcome is returned with a reason, for the caller to count and report.
+* every outcome is returned with a reason, for the caller to count and report;
+* what it is given is bounded before FFmpeg sees it: an access unit with more than
+  ``MAX_NAL_UNITS`` start codes is refused (FFmpeg keeps state per NAL unit: 2 MiB of bare
+  start codes took a decoder to 1.1 GB), and a parameter set declaring more than
+  ``max_pixels`` is refused by FFmpeg before a picture is allocated (cause ``oversized``);
+* a picture is converted to BGR only when asked for (``Decoded.image``): units decoded
+  only to keep the chain intact, superseded before they are tracked, cost their decoding
+  and nothing more (a 36 MP skip unit: 87 ms with its conversion).
 
 Decoding runs single-threaded per stream (FFmpeg's frame threads would hold several frames
 and make the error capture ambiguous), so its memory is one decoder's: the reference frames
@@ -23,8 +30,10 @@ of one stream (measured in docs/benchmarks.md).
 from __future__ import annotations
 
 import logging
+import re
 from dataclasses import dataclass
 from enum import Enum
+from functools import cached_property
 
 import av
 import av.logging
@@ -37,6 +46,13 @@ PARAMETER_TYPES = {"h264": frozenset({7, 8}), "hevc": frozenset({32, 33, 34})}
 #: a video encoding's name on the wire (frame ``encoding``, CompressedVideo ``format``) ->
 #: the FFmpeg decoder :class:`StreamDecoder` runs for it
 CODECS = {"h264": "h264", "h265": "hevc"}
+#: The most NAL units one access unit may hold. A camera's picture has a handful (parameter
+#: sets, SEI, its slices; a low-latency encoder's size-capped slices a few hundred at 4K).
+#: Every start code costs FFmpeg per-unit state, and a Python loop an iteration, so a unit
+#: packed with them is refused after reading this many, whatever its size.
+MAX_NAL_UNITS = 1024
+#: FFmpeg's log of a picture refused for its size (libavutil's av_image_check_size2)
+_OVERSIZED = "exceeds specified max pixel count"
 #: FFmpeg's log level of a decoding error (AV_LOG_ERROR)
 _FFMPEG_ERROR = 16
 #: FFmpeg's report that it papered over damage (AV_LOG_INFO, "concealing N DC, N AC, N MV
@@ -56,8 +72,8 @@ class Outcome(str, Enum):
 @dataclass(frozen=True)
 class Decoded:
     outcome: Outcome
-    #: the picture, (H, W, 3) uint8 BGR, for ``Outcome.FRAME``
-    image: np.ndarray | None = None
+    #: the decoded picture (FFmpeg's, not converted yet), for ``Outcome.FRAME``
+    picture: av.VideoFrame | None = None
     #: the number of the access unit the picture was decoded from (with B-frames, an earlier
     #: unit than the one just given), for ``Outcome.FRAME``
     seq: int | None = None
@@ -66,12 +82,23 @@ class Decoded:
     #: what broke, for ``RESYNC``: ``gap``, ``corrupt`` or ``oversized``
     cause: str | None = None
 
+    @cached_property
+    def image(self) -> np.ndarray | None:
+        """The picture as (H, W, 3) uint8 BGR, converted on first use (None without one)."""
+        return None if self.picture is None else self.picture.to_ndarray(format="bgr24")
 
-def nal_units(data: bytes, codec: str) -> list[tuple[int, bytes]]:
-    """The NAL units of an Annex B access unit: (type, the unit with its start code)."""
+
+def nal_units(data: bytes, codec: str, limit: int = MAX_NAL_UNITS) -> list[tuple[int, bytes]]:
+    """The NAL units of an Annex B access unit: (type, the unit with its start code).
+
+    Raises ``ValueError`` at the ``limit + 1``-th start code: the search (bytes.find, in C) is
+    linear in the unit's size and stops there, so a unit packed with start codes costs at
+    most ``limit`` steps of Python."""
     starts = []
     i = data.find(b"\x00\x00\x01")
     while i >= 0:
+        if len(starts) == limit:
+            raise ValueError(f"more than {limit} NAL units in one access unit")
         begin = i - 1 if i > 0 and data[i - 1] == 0 else i  # a 4-byte start code
         starts.append((begin, i + 3))
         i = data.find(b"\x00\x00\x01", i + 3)
@@ -89,7 +116,7 @@ def nal_units(data: bytes, codec: str) -> list[tuple[int, bytes]]:
 class StreamDecoder:
     """The decoder of one stream's access units (``codec``: ``"h264"`` or ``"hevc"``)."""
 
-    def __init__(self, codec: str, max_pixels: int = 40_000_000) -> None:
+    def __init__(self, codec: str, max_pixels: int = 8_847_360) -> None:
         if codec not in KEYFRAME_TYPES:
             raise ValueError(f"codec must be 'h264' or 'hevc', got {codec!r}")
         self.codec = codec
@@ -123,7 +150,10 @@ class StreamDecoder:
         """Decode the access unit numbered ``seq`` of the stream."""
         gap = self._next_seq is not None and seq != self._next_seq
         expected, self._next_seq = self._next_seq, seq + 1
-        units = nal_units(data, self.codec)
+        try:
+            units = nal_units(data, self.codec)
+        except ValueError as exc:
+            return self._resync("corrupt", f"not a camera's access unit: {exc}")
         if not units:
             return self._resync("corrupt", "not an Annex B access unit (no start code)")
         for kind, unit in units:
@@ -144,14 +174,23 @@ class StreamDecoder:
             # FFmpeg refuses a larger picture before allocating it: a parameter set declaring
             # a huge size (a decoding bomb) costs nothing
             self._ctx.options = {"max_pixels": str(self.max_pixels)}
-        try:
-            with av.logging.Capture(local=False) as logs:
+        failed: Exception | None = None
+        frames: list[av.VideoFrame] = []
+        with av.logging.Capture(local=False) as logs:
+            try:
                 packet = av.Packet(data)
                 packet.pts = seq  # comes back on the picture: which unit it is
                 frames = self._ctx.decode(packet)
-        except (av.FFmpegError, ValueError) as exc:
-            return self._resync("corrupt", f"damaged access unit, or pictures above "
-                                f"{self.max_pixels} pixels: {exc}")
+            except (av.FFmpegError, ValueError) as exc:
+                failed = exc
+        oversized = [text for _, _, text in logs if _OVERSIZED in text]
+        if oversized:  # refused by FFmpeg before it allocated the picture
+            size = re.search(r"(\d+)x(\d+)", oversized[0])
+            declared = f"{size[1]}x{size[2]} pictures" if size else "larger pictures"
+            return self._resync("oversized", f"the stream declares {declared}, above "
+                                f"max_pixels ({self.max_pixels} pixels)")
+        if failed is not None:
+            return self._resync("corrupt", f"damaged access unit: {failed}")
         errors = [text.strip() for level, _, text in logs
                   if level <= _FFMPEG_ERROR or text.startswith(_CONCEALED)]
         if errors:
@@ -164,5 +203,5 @@ class StreamDecoder:
             return self._resync("oversized", f"{frame.width}x{frame.height} pictures exceed "
                                 f"{self.max_pixels} pixels")
         self._count(Outcome.FRAME.value)
-        return Decoded(Outcome.FRAME, image=frame.to_ndarray(format="bgr24"),
+        return Decoded(Outcome.FRAME, picture=frame,
                        seq=seq if frame.pts is None else int(frame.pts))

@@ -50,7 +50,7 @@ from .commands import (
 from .decoding import decode_image
 from .foxglove import parse_compressed_video
 from .intake import Numbering, TokenBucket, Verdict
-from .video import CODECS, Outcome, StreamDecoder
+from .video import CODECS, Decoded, Outcome, StreamDecoder
 
 log = logging.getLogger("arcf.service.worker")
 
@@ -73,6 +73,8 @@ class _Session:
     #: mean CPU seconds per tracked frame, exponentially weighted (``session_budget_ms``)
     cost_s: float = 0.0
     tracked: int = 0
+    #: CPU seconds of its tracking in the worker's current one-second window (``worker_budget``)
+    window_cpu_s: float = 0.0
     #: monotonic time of its start or its last result about a frame: with its stream's last
     #: arrival, what ``stale_after_s`` counts from (a reinit brings no frame: not counted)
     fresh_at: float = field(default_factory=time.monotonic)
@@ -97,6 +99,19 @@ class _CommandRefused(Exception):
 #: first ``_HEAD`` bytes of the message, where the schema's field order puts it before payload
 _VIDEO_MARK = re.compile(rb"\xa8encoding\xa4h26[45]")
 _HEAD = 256
+#: The most a video stream's backlog may decode in one turn, seconds: the other streams of the
+#: worker wait at most this (plus one unit) for a stream that fell behind.
+DECODE_TURN_S = 0.05
+#: Over ``worker_budget``, a stream counts as starved when one of its frames waited in its
+#: queue longer than this, seconds (a frame period at 10 fps), or its queue dropped one.
+STARVED_WAIT_S = 0.1
+#: Consecutive one-second windows over budget, with a stream starved, before a session is
+#: shed (a burst, e.g. a session's first frames, is not an overload).
+OVER_BUDGET_WINDOWS = 2
+#: The costliest stream is shed only if it costs this many times a starved stream: among
+#: equals (more streams of the same kind than the worker can serve) none is to blame, and
+#: each keeps its newest frames, dropping the rest (counted), as before.
+UNFAIR = 2.0
 
 
 class _Inbox:
@@ -141,6 +156,8 @@ class _Inbox:
         self.max_payload = max_payload
         self.wake = wake
         self.metrics = metrics
+        #: frames dropped from the queue's old end so far (the stream lagged behind)
+        self.trimmed = 0
         #: frames refused here so far, by code (the loop reports them to the stream)
         self.refused: dict[ErrorCode, int] = {ErrorCode.RATE_LIMITED: 0,
                                               ErrorCode.OVERSIZED_PAYLOAD: 0}
@@ -184,6 +201,7 @@ class _Inbox:
                                                 or self._bytes > self.max_bytes):
                     # the oldest goes: the gap shows in the numbers, and is counted
                     self._bytes -= len(self.frames.popleft()[0])
+                    self.trimmed += 1
             self.wake.set()
 
     def _refuse(self, code: ErrorCode) -> None:
@@ -209,10 +227,27 @@ class _Picture:
     capture_ts_ns: int
     received_ns: int
     decode_s: float
-    #: (H, W, 3) or (H, W) uint8, BGR or grey; None when the frame gave nothing to track
+    #: (H, W, 3) or (H, W) uint8, BGR or grey; None when the frame gave nothing to track or
+    #: is a video picture not converted yet
     image: np.ndarray | None
     code: ErrorCode | None = None
     text: str | None = None
+    #: a decoded video picture, converted to ``image`` only if it is tracked (``pixels``): a
+    #: unit decoded to keep the chain and superseded costs its decoding only
+    video: Decoded | None = None
+
+    @property
+    def has_pixels(self) -> bool:
+        return self.image is not None or self.video is not None
+
+    def pixels(self) -> np.ndarray | None:
+        """The picture's pixels, converting a video picture on first use (its time counted
+        in ``decode_s``)."""
+        if self.image is None and self.video is not None:
+            t0 = time.perf_counter()
+            self.image, self.video = self.video.image, None
+            self.decode_s += time.perf_counter() - t0
+        return self.image
 
 
 @dataclass
@@ -234,6 +269,15 @@ class _Stream:
     #: (capture, arrival) times of the units in the decoder, by number, until their picture
     #: comes out (bounded: units whose picture never comes are forgotten oldest first)
     unit_times: dict[int, tuple[int, int]] = field(default_factory=dict)
+    #: a decoded picture held over while the rest of its backlog waits for the next turn
+    held: _Picture | None = None
+    #: in the worker's current one-second window (``worker_budget``): CPU seconds spent
+    #: decoding and converting its frames, the longest a frame of it waited in its queue,
+    #: and its queue's drops before it
+    window_decode_s: float = 0.0
+    window_wait_s: float = 0.0
+    window_turns: int = 0
+    trimmed_before: int = 0
 
 
 def _warm_up() -> None:
@@ -293,6 +337,8 @@ class Worker:
         self.pending: deque[dict[str, Any]] = deque()
         #: when ``_check_stale`` must look next (monotonic; inf: no session can go stale)
         self.stale_due = math.inf
+        #: consecutive one-second windows over ``worker_budget`` with a stream starved
+        self.over_budget = 0
         threading.Thread(target=self._pump_commands, daemon=True,
                          name=f"worker-{index}-commands").start()
 
@@ -392,6 +438,60 @@ class Worker:
         self.metrics.ERRORS.labels(kind=code.value).inc()
         self.responses.put(SessionsEnded(self.index, (s.session_id,), reason))
         log.info("worker %d: session %s ended: %s", self.index, s.session_id, reason)
+
+    def _shed(self, busy: float, window_s: float) -> None:
+        """The per-worker budget: once a second, with the window's busy share. A worker busier
+        than ``worker_budget`` while a stream's frames wait (or are dropped) for
+        ``OVER_BUDGET_WINDOWS`` windows ends its costliest consumer: every session of a stream
+        whose decoding costs more than any one session's tracking (a video stream that is
+        expensive to decode), else the session whose tracking costs most. Costliest by what a
+        turn of the stream costs (the wait it puts on every other stream), and only if that is
+        ``UNFAIR`` times a starved stream's turn; a starved stream that is itself the
+        costliest is only behind its own work: nothing is shed for it."""
+        streams = list(self.streams.values())
+        starved = set()
+        for st in streams:
+            trimmed = st.inbox.trimmed
+            if st.window_wait_s > STARVED_WAIT_S or trimmed > st.trimmed_before:
+                starved.add(st.stream_id)
+            st.trimmed_before, st.window_wait_s = trimmed, 0.0
+        # what one turn of each stream costs the others: its decoding and its sessions'
+        # tracking, per frame it was served
+        turn = {st.stream_id: (st.window_decode_s + sum(x.window_cpu_s
+                                                        for x in st.sessions.values()))
+                / max(st.window_turns, 1) for st in streams}
+        budget = self.settings.worker_budget
+        heaviest = max(turn, key=turn.__getitem__, default=None)
+        victims = [turn[sid] for sid in starved if sid != heaviest]
+        if (budget and busy > budget and heaviest is not None and victims
+                and turn[heaviest] > UNFAIR * min(victims)):
+            self.over_budget += 1
+        else:
+            self.over_budget = 0
+        if self.over_budget >= OVER_BUDGET_WINDOWS and heaviest is not None:
+            self.over_budget = 0
+            stream = self.streams[heaviest]
+            session = max(stream.sessions.values(), key=lambda x: x.window_cpu_s)
+            share = f"{100 * busy:.0f} % busy, over worker_budget {100 * budget:g} %"
+            if stream.window_decode_s > session.window_cpu_s:
+                why = (f"session ended: decoding stream {heaviest!r} took "
+                       f"{1e3 * stream.window_decode_s / window_s:.0f} ms of CPU a second "
+                       f"({1e3 * stream.window_decode_s / max(stream.window_turns, 1):.0f} "
+                       "ms a turn), "
+                       f"the most on a worker {share} while other streams waited")
+                self.metrics.SHED.labels(cause="decoding").inc(len(stream.sessions))
+                for victim in list(stream.sessions.values()):
+                    self._end(victim, why, ErrorCode.LIMIT_EXCEEDED)
+            else:
+                self.metrics.SHED.labels(cause="tracking").inc()
+                self._end(session, f"session ended: its tracking took "
+                          f"{1e3 * session.window_cpu_s / window_s:.0f} ms of CPU a second, "
+                          f"the most on a worker {share} while other streams waited",
+                          ErrorCode.LIMIT_EXCEEDED)
+        for st in streams:
+            st.window_decode_s, st.window_turns = 0.0, 0
+        for x in self.sessions.values():
+            x.window_cpu_s = 0.0
 
     def _housekeeping(self) -> None:
         """Once a second: end the sessions idle past ``session_idle_s``, report the rest."""
@@ -608,20 +708,35 @@ class Worker:
                  source: str = "frame", unit_seq: int | None = None) -> None:
         """Take one queued frame and run the stream's sessions on what it gave. A video
         stream's queued units are all decoded first (a P-frame cannot be skipped), and only
-        the newest picture is tracked: overload drops tracking work, never decoder state."""
+        the newest picture is tracked: overload drops tracking work, never decoder state.
+        Decoding that backlog takes at most ``DECODE_TURN_S`` of this turn: the rest waits
+        for the stream's next turn, after every other stream's (its picture is held)."""
+        stream.window_wait_s = max(stream.window_wait_s, (time.time_ns() - received_ns) / 1e9)
+        stream.window_turns += 1
+        t0 = time.perf_counter()
         picture = self._ingest(stream, payload, received_ns, source, unit_seq)
+        if stream.held is not None:
+            if picture is None:
+                picture = stream.held
+            elif stream.held.has_pixels:
+                self.metrics.FRAMES_DROPPED.inc()  # decoded, superseded, not tracked
+            stream.held = None
         # what is queued now, not what keeps coming: a stream whose units arrive faster than
         # they decode must not hold the loop (its queue overflows instead: a counted resync)
         for _ in range(len(stream.inbox.frames) if stream.decoder is not None else 0):
+            if time.perf_counter() - t0 > DECODE_TURN_S:
+                stream.held = picture
+                break
             item = stream.inbox.pop()
             if item is None:
                 break
             newer = self._ingest(stream, *item)
             if newer is not None:
-                if picture is not None and picture.image is not None:
+                if picture is not None and picture.has_pixels:
                     self.metrics.FRAMES_DROPPED.inc()  # decoded, superseded, not tracked
                 picture = newer
-        if picture is not None:
+        stream.window_decode_s += time.perf_counter() - t0
+        if picture is not None and stream.held is None:
             self._track(stream, picture)
 
     def _ingest(self, stream: _Stream, payload: bytes, received_ns: int, source: str,
@@ -726,7 +841,7 @@ class Worker:
         if out.outcome is Outcome.FRAME:
             seq = out.seq if out.seq is not None else seq
             capture_ts_ns, received_ns = times.pop(seq, (capture_ts_ns, received_ns))
-            return _Picture(seq, capture_ts_ns, received_ns, decode_s, out.image)
+            return _Picture(seq, capture_ts_ns, received_ns, decode_s, None, video=out)
         if out.outcome is Outcome.NO_FRAME:
             return None
         times.pop(seq, None)
@@ -740,7 +855,10 @@ class Worker:
     def _track(self, stream: _Stream, picture: _Picture) -> None:
         """Every session of the stream on one picture (or told why there is none)."""
         m = self.metrics
-        image, decode_s, received_ns = picture.image, picture.decode_s, picture.received_ns
+        t0 = time.perf_counter()
+        image = picture.pixels()
+        stream.window_decode_s += time.perf_counter() - t0
+        decode_s, received_ns = picture.decode_s, picture.received_ns
         code, text = picture.code, picture.text
         if image is not None:
             m.FRAMES_PROCESSED.inc()
@@ -778,6 +896,7 @@ class Worker:
             track_s = time.perf_counter() - t1
             cpu_s = time.thread_time() - c1
             m.TRACK.observe(track_s)
+            s.window_cpu_s += cpu_s
             s.last_seq = picture.seq
             s.frames += 1
             nan = float("nan")
@@ -869,6 +988,7 @@ class Worker:
                 if now - t_window >= 1.0:
                     self.busy.set(busy_s / (now - t_window))
                     self.memory.set(self.metrics.resident_bytes())
+                    self._shed(busy_s / (now - t_window), now - t_window)
                     busy_s, t_window = 0.0, now
                     self._housekeeping()
         if self.stop.is_set():

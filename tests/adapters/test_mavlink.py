@@ -29,6 +29,7 @@ from adapters.mavlink import (
 )
 from arcf.data import data_root
 from arcf.eval import load_dataset
+from loadtools.groundstation import GroundStation
 from loadtools.procs import ServiceProcess, free_port
 from schemas import Result
 from service.client import TrackingClient
@@ -60,34 +61,13 @@ def _result(status: str, seq: int, **extra: Any) -> Result:
                   published_ts_ns=1, **extra)
 
 
-class _Watch:
-    def close(self) -> None:
-        pass
-
-
-class _Client:
-    """What the endpoint asks of a service client before any command: its result and frame
-    callbacks, kept to be called by the test."""
-
-    def __init__(self) -> None:
-        self.callbacks: dict[str, Any] = {}
-
-    def frames(self, stream_id: str, callback: Any) -> _Watch:
-        self.callbacks["frames"] = callback
-        return _Watch()
-
-    def results(self, stream_id: str, callback: Any) -> _Watch:
-        self.callbacks["results"] = callback
-        return _Watch()
-
-
-def test_a_stale_session_is_never_active_whoever_says_so() -> None:
+def test_a_stale_session_is_never_active_whoever_says_so(offline_client: Any) -> None:
     """The service's stale notice, and silence from the service (the adapter's own timeout,
     on a clock given to it), both make the status ERROR without a box; a result about a
     frame makes it ACTIVE again. The STATUSTEXT is sent once per change."""
     assert tracking_status(_result("stale", 4, code="no_frames")) == \
         mav.CAMERA_TRACKING_STATUS_FLAGS_ERROR
-    client = _Client()
+    client = offline_client
     endpoint = MavlinkCameras(client, f"udpin:127.0.0.1:{free_port()}",  # type: ignore[arg-type]
                               [CameraConfig(STREAM, COMP)], stale_after_s=1.0)
     try:
@@ -134,18 +114,18 @@ def test_a_stale_session_is_never_active_whoever_says_so() -> None:
     finally:
         endpoint.close()
     with pytest.raises(ValueError, match="stale_after_s"):
-        MavlinkCameras(_Client(), f"udpin:127.0.0.1:{free_port()}",  # type: ignore[arg-type]
+        MavlinkCameras(offline_client, f"udpin:127.0.0.1:{free_port()}",  # type: ignore[arg-type]
                        [CameraConfig(STREAM, COMP)], stale_after_s=float("nan"))
 
 
 def test_the_status_goes_out_as_soon_as_the_session_goes_stale_or_comes_back(
-        monkeypatch: pytest.MonkeyPatch) -> None:
+        monkeypatch: pytest.MonkeyPatch, offline_client: Any) -> None:
     """A change between stale and not stale sends its STATUSTEXT and the status at once,
     not at the status's next interval: on the service's notice as it arrives (no tick of
     the I/O loop runs here), on the first result about a frame after it, and on the tick
     that finds the adapter's own timeout passed. Once per change; a station that turned
     the status off gets the STATUSTEXT only."""
-    client = _Client()
+    client = offline_client
     endpoint = MavlinkCameras(client, f"udpin:127.0.0.1:{free_port()}",  # type: ignore[arg-type]
                               [CameraConfig(STREAM, COMP)], status_interval_s=60.0)
     sent: list[Any] = []
@@ -195,63 +175,6 @@ def test_the_status_goes_out_as_soon_as_the_session_goes_stale_or_comes_back(
         endpoint.close()
 
 
-class Station:
-    """A ground station: heartbeats at 2 Hz (while ``alive``), commands, and every message
-    it receives kept by type."""
-
-    def __init__(self, port: int) -> None:
-        self.conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=255,
-                                               source_component=mav.MAV_COMP_ID_MISSIONPLANNER)
-        self.alive = threading.Event()
-        self.alive.set()
-        self.received: list[Any] = []
-        self._lock = threading.Lock()
-        self._stop = threading.Event()
-        self._threads = [threading.Thread(target=self._beat, daemon=True),
-                         threading.Thread(target=self._listen, daemon=True)]
-        for t in self._threads:
-            t.start()
-
-    def _beat(self) -> None:
-        while not self._stop.wait(0.5):
-            if self.alive.is_set():
-                self.conn.mav.heartbeat_send(mav.MAV_TYPE_GCS, mav.MAV_AUTOPILOT_INVALID, 0, 0,
-                                             mav.MAV_STATE_ACTIVE)
-
-    def _listen(self) -> None:
-        while not self._stop.is_set():
-            msg = self.conn.recv_match(blocking=True, timeout=0.05)
-            if msg is not None and msg.get_type() != "BAD_DATA":
-                with self._lock:
-                    self.received.append((time.monotonic(), msg))
-
-    def since(self, t0: float, kind: str) -> list[Any]:
-        with self._lock:
-            return [m for t, m in self.received if t >= t0 and m.get_type() == kind]
-
-    def command(self, command: int, *params: float, component: int = COMP,
-                timeout: float = 10.0, confirmation: int = 0) -> tuple[int, list[str]]:
-        """Send a COMMAND_LONG; its COMMAND_ACK's result and the STATUSTEXTs sent with it."""
-        t0 = time.monotonic()
-        p = [*params, *[0.0] * (7 - len(params))]
-        self.conn.mav.command_long_send(1, component, command, confirmation, *p)
-        deadline = t0 + timeout
-        while time.monotonic() < deadline:
-            acks = [a for a in self.since(t0, "COMMAND_ACK") if a.command == command]
-            if acks:
-                time.sleep(0.05)  # a STATUSTEXT goes just before its ack
-                texts = [m.text for m in self.since(t0, "STATUSTEXT")]
-                return acks[0].result, texts
-            time.sleep(0.01)
-        raise AssertionError(f"no COMMAND_ACK for {command} within {timeout} s")
-
-    def close(self) -> None:
-        self._stop.set()
-        for t in self._threads:
-            t.join(timeout=2)
-        self.conn.close()
-
-
 @pytest.fixture(scope="module")
 def sequence() -> Any:
     (seq,) = load_dataset("uav123_10fps", sequences=["wakeboard7"])
@@ -270,7 +193,7 @@ def rig(sequence: Any) -> Iterator[dict[str, Any]]:
     endpoint = MavlinkCameras(endpoint_client, f"udpin:127.0.0.1:{port}",
                               [CameraConfig(STREAM, COMP)], link_timeout_s=1.0,
                               status_interval_s=1.0).start()
-    station = Station(port)
+    station = GroundStation(port, COMP)
     data = [p.read_bytes() for p in sequence.frames]
     publishing = threading.Event()
     stop = threading.Event()

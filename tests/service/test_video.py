@@ -117,6 +117,35 @@ def test_h265() -> None:
 def test_pictures_above_max_pixels_are_refused_before_decoding(h264: list[bytes]) -> None:
     dec = StreamDecoder("h264", max_pixels=640 * 360 - 1)  # one pixel short of the stream's
     out = [dec.decode(i, u) for i, u in enumerate(h264[:GOP + 1])]
-    assert out[0].outcome is Outcome.RESYNC and f"{640 * 360 - 1} pixels" in (out[0].reason or "")
+    assert out[0].outcome is Outcome.RESYNC and out[0].cause == "oversized"
+    assert out[0].reason == "the stream declares 640x360 pictures, above max_pixels (230399 pixels)"
     assert all(o.outcome is not Outcome.FRAME for o in out)
     assert StreamDecoder("h264", max_pixels=640 * 360).decode(0, h264[0]).outcome is Outcome.FRAME
+
+
+def test_an_access_unit_packed_with_start_codes_is_refused_before_the_decoder() -> None:
+    """2 MiB of bare IDR start codes took FFmpeg's decoder to 1.1 GB; 8 MiB of access-unit
+    delimiters cost Python 2M loop steps. Both are refused at MAX_NAL_UNITS + 1 start codes,
+    the decoder never made, and a real stream decodes afterwards."""
+    from service.video import MAX_NAL_UNITS
+
+    with pytest.raises(ValueError, match=f"more than {MAX_NAL_UNITS} NAL units"):
+        nal_units(b"\x00\x00\x01\x09" * (2 << 20), "h264")
+    assert len(nal_units(b"\x00\x00\x01\x09\xf0" * MAX_NAL_UNITS, "h264")) == MAX_NAL_UNITS
+    for codec, unit in (("h264", b"\x00\x00\x01\x65"), ("hevc", b"\x00\x00\x01\x26\x01")):
+        dec = StreamDecoder(codec)
+        out = dec.decode(0, unit * (MAX_NAL_UNITS + 1))
+        assert out.outcome is Outcome.RESYNC and out.cause == "corrupt"
+        assert f"more than {MAX_NAL_UNITS} NAL units" in (out.reason or "")
+        assert not dec.synchronised and dec.counts == {"resync": 1, "resync_corrupt": 1}
+
+
+def test_pictures_are_converted_only_when_asked_for(h264: list[bytes]) -> None:
+    """A unit decoded to keep the chain holds FFmpeg's picture; BGR pixels are made once, on
+    first use, equal to FFmpeg's own conversion."""
+    dec = StreamDecoder("h264")
+    out = dec.decode(0, h264[0])
+    assert out.picture is not None and "image" not in out.__dict__
+    first = out.image
+    assert first is out.image  # converted once
+    np.testing.assert_array_equal(first, plain(h264[:1])[0])

@@ -1,0 +1,34 @@
+"""What the adapters' tests share."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import pytest
+
+
+class _Watch:
+    def close(self) -> None:
+        pass
+
+
+class OfflineClient:
+    """What the endpoint asks of a service client before any command: its result and frame
+    callbacks, kept to be called by the test."""
+
+    def __init__(self) -> None:
+        self.callbacks: dict[str, Any] = {}
+
+    def frames(self, stream_id: str, callback: Any) -> _Watch:
+        self.callbacks["frames"] = callback
+        return _Watch()
+
+    def results(self, stream_id: str, callback: Any) -> _Watch:
+        self.callbacks["results"] = callback
+        return _Watch()
+
+
+@pytest.fixture
+def offline_client() -> OfflineClient:
+    """A stand-in for a service client, for adapter tests that need no service."""
+    return OfflineClient()
