@@ -19,6 +19,14 @@ its viewers, and each viewer fetches the newest one when it has shown the last. 
 stream's access units must all be decoded while it is watched (one decoder, as in the
 service). It binds to loopback unless ``--host``
 says otherwise: anyone who reaches the page sees the video.
+
+What a client can hold is bounded like the service's inputs: at most ``max_viewers``
+watching connections, ``MAX_PER_CLIENT`` of them from one address; at most
+``MAX_CONNECTIONS`` open connections (more are closed at once) with a listen backlog of
+``BACKLOG``; ``TIMEOUT_S`` to send a request and to take each write (a viewer that stops
+reading, or lets ``MAX_UNSENT`` bytes of events pile up unread, is dropped and its place
+freed); pictures above ``max_pixels`` (from their header, before decoding) are not drawn;
+a query that is not a number is ignored.
 """
 
 from __future__ import annotations
@@ -42,6 +50,7 @@ import numpy as np
 from schemas import Result
 from service.client import TrackingClient
 from service.decoding import decode_compressed
+from service.imagecheck import image_size
 from service.video import CODECS, Outcome, StreamDecoder
 
 from ._command import add_service_arguments, prepare, service_client
@@ -57,6 +66,23 @@ _STATIC = {"/": ("view.html", "text/html; charset=utf-8"),
 _RECENT = 8
 #: results kept per watched stream for a viewer that connects (the plot's history)
 _HISTORY = 600
+#: watching connections (pictures, results) one client address may hold
+MAX_PER_CLIENT = 4
+#: open connections at once (each is a thread); beyond, new ones are closed unanswered
+MAX_CONNECTIONS = 64
+#: connections the kernel queues before they are accepted
+BACKLOG = 128
+#: seconds a client has to send its request, and to take each write
+TIMEOUT_S = 10.0
+#: bytes of events a results viewer may leave unread in its socket before it is dropped
+MAX_UNSENT = 256 * 1024
+#: digits a number in a query may have (a picture count)
+_MAX_DIGITS = 18
+#: seconds a picture request waits for the next picture before answering "none yet" (204)
+POLL_S = 10.0
+#: seconds between a results stream's keep-alive comments while no result comes: a viewer
+#: that left is found (and its place freed) by the write after next
+KEEPALIVE_S = 15.0
 
 
 def colour_bgr(index: int) -> tuple[int, int, int]:
@@ -103,9 +129,9 @@ class Watch:
     """One watched stream: its frames and results heard, rendered at a capped rate."""
 
     def __init__(self, client: TrackingClient, stream_id: str, max_fps: float, max_width: int,
-                 video_key: str | None) -> None:
+                 video_key: str | None, max_pixels: int = 4096 * 2160) -> None:
         self.stream_id = stream_id
-        self.max_fps, self.max_width = max_fps, max_width
+        self.max_fps, self.max_width, self.max_pixels = max_fps, max_width, max_pixels
         self.viewers = 0
         self.changed = threading.Condition()
         #: the latest rendered picture (JPEG) and its number, for the MJPEG viewers
@@ -137,7 +163,7 @@ class Watch:
         if frame.is_video:  # every unit through the decoder; the picture is what is kept
             codec = CODECS[frame.encoding]
             if self._decoder is None or self._decoder.codec != codec:
-                self._decoder = StreamDecoder(codec)
+                self._decoder = StreamDecoder(codec, self.max_pixels)
             out = self._decoder.decode(frame.seq, frame.payload)
             if out.outcome is not Outcome.FRAME or out.image is None:
                 return
@@ -216,9 +242,10 @@ class Watch:
                 continue
             seq, item, results = picked
             try:
-                picture = item if isinstance(item, np.ndarray) else _picture(item)
-            except ValueError:
-                log.debug("frame %d of %s not decodable", seq, self.stream_id)
+                picture = (item if isinstance(item, np.ndarray)
+                           else _picture(item, self.max_pixels))
+            except ValueError as exc:
+                log.debug("frame %d of %s not drawn: %s", seq, self.stream_id, exc)
                 continue
             scale = min(1.0, self.max_width / picture.shape[1])
             if scale < 1.0:
@@ -248,11 +275,18 @@ def _finite(values: Sequence[float]) -> list[float | None]:
     return [float(v) if np.isfinite(v) else None for v in values]
 
 
-def _picture(frame: TapFrame) -> np.ndarray:
+def _picture(frame: TapFrame, max_pixels: int) -> np.ndarray:
+    """A frame's pixels; ``ValueError`` when it cannot be read or declares more than
+    ``max_pixels`` (read from its header: a decompression bomb is never decoded)."""
     if frame.encoding in ("jpeg", "png"):
+        size = image_size(frame.payload)
+        if size is None or size[0] * size[1] > max_pixels:
+            raise ValueError(f"{frame.encoding} of size {size}: unreadable or above "
+                             f"{max_pixels} pixels")
         return decode_compressed(frame.payload)
     channels = 3 if frame.encoding == "bgr8" else 1
-    assert frame.width is not None and frame.height is not None
+    if frame.width is None or frame.height is None or frame.width * frame.height > max_pixels:
+        raise ValueError(f"raw frame of {frame.width}x{frame.height}: above {max_pixels} pixels")
     return np.frombuffer(frame.payload, dtype=np.uint8).reshape(
         frame.height, frame.width, channels).squeeze()
 
@@ -262,20 +296,28 @@ class LiveView:
 
     def __init__(self, client: TrackingClient, host: str = "127.0.0.1", port: int = 8090, *,
                  max_fps: float = 5.0, max_width: int = 960,
-                 video_key: str | None = DEFAULT_VIDEO_KEY, max_viewers: int = 16) -> None:
-        if not (0 < max_fps <= 30 and 64 <= max_width <= 4096 and max_viewers >= 1):
-            raise ValueError("max_fps must be in (0, 30], max_width in [64, 4096]")
+                 video_key: str | None = DEFAULT_VIDEO_KEY, max_viewers: int = 16,
+                 max_pixels: int = 4096 * 2160) -> None:
+        if not (0 < max_fps <= 30 and 64 <= max_width <= 4096 and max_viewers >= 1
+                and max_pixels >= 1):
+            raise ValueError("max_fps must be in (0, 30], max_width in [64, 4096], "
+                             "max_viewers and max_pixels >= 1")
         self.client = client
         self.max_fps, self.max_width, self.video_key = max_fps, max_width, video_key
-        self.max_viewers = max_viewers
+        self.max_viewers, self.max_pixels = max_viewers, max_pixels
         self.watches: dict[str, Watch] = {}
         self._lock = threading.Lock()
         self._viewers = 0
+        #: watching connections per client address
+        self._by_client: dict[str, int] = {}
+        #: what was refused or dropped, by reason (for tests and logs)
+        self.counts: dict[str, int] = {}
         self._status: tuple[float, bytes] = (0.0, b"")
         view = self
 
         class Handler(BaseHTTPRequestHandler):
             protocol_version = "HTTP/1.1"
+            timeout = TIMEOUT_S  # the socket's: reading the request, and every write
 
             def log_message(self, fmt: str, *args: Any) -> None:
                 log.debug("%s " + fmt, self.address_string(), *args)
@@ -283,7 +325,7 @@ class LiveView:
             def do_GET(self) -> None:
                 view.handle(self)
 
-        self.server = ThreadingHTTPServer((host, port), Handler)
+        self.server = _BoundedServer((host, port), Handler, self)
         self.server.daemon_threads = True
         self.port = self.server.server_address[1]
         self._thread = threading.Thread(target=self.server.serve_forever, daemon=True,
@@ -296,21 +338,35 @@ class LiveView:
         return f"http://{'127.0.0.1' if host in ('0.0.0.0', '') else host}:{self.port}/"
 
     # ------------------------------------------------------------------ watching
-    def _watch(self, stream_id: str) -> Watch | None:
+    def count(self, reason: str) -> None:
+        with self._lock:
+            self.counts[reason] = self.counts.get(reason, 0) + 1
+
+    def _watch(self, stream_id: str, client: str) -> Watch | str:
+        """The stream's watch, with one more viewer; or why not (a 503's text)."""
         with self._lock:
             if self._viewers >= self.max_viewers:
-                return None
+                return "too many viewers"
+            if self._by_client.get(client, 0) >= MAX_PER_CLIENT:
+                return f"too many viewers from {client} (at most {MAX_PER_CLIENT})"
             self._viewers += 1
+            self._by_client[client] = self._by_client.get(client, 0) + 1
             watch = self.watches.get(stream_id)
             if watch is None:
                 watch = self.watches[stream_id] = Watch(
-                    self.client, stream_id, self.max_fps, self.max_width, self.video_key)
+                    self.client, stream_id, self.max_fps, self.max_width, self.video_key,
+                    self.max_pixels)
             watch.viewers += 1
             return watch
 
-    def _unwatch(self, watch: Watch) -> None:
+    def _unwatch(self, watch: Watch, client: str) -> None:
         with self._lock:
             self._viewers -= 1
+            left = self._by_client[client] - 1
+            if left:
+                self._by_client[client] = left
+            else:
+                del self._by_client[client]
             watch.viewers -= 1
             if watch.viewers == 0:
                 del self.watches[watch.stream_id]
@@ -328,20 +384,25 @@ class LiveView:
         elif path == "/api/streams":
             self._send(req, HTTPStatus.OK, "application/json", self._streams())
         elif (m := _STREAM.match(path)) is not None:
-            watch = self._watch(m.group(1))
-            if watch is None:
+            client = req.client_address[0]
+            watch = self._watch(m.group(1), client)
+            if isinstance(watch, str):
+                self.count("refused_viewer")
                 self._send(req, HTTPStatus.SERVICE_UNAVAILABLE, "text/plain",
-                           b"too many viewers\n")
+                           watch.encode() + b"\n")
                 return
             try:
                 if m.group(2) == "frame.jpg":
                     self._frame(req, watch)
                 else:
                     self._events(req, watch)
-            except (BrokenPipeError, ConnectionResetError, TimeoutError):
+            except (BrokenPipeError, ConnectionResetError):
                 pass  # the viewer left
+            except (TimeoutError, _SlowReader):
+                self.count("slow_viewer")  # it stopped reading: its place is freed
+                req.close_connection = True
             finally:
-                self._unwatch(watch)
+                self._unwatch(watch, client)
         else:
             self._send(req, HTTPStatus.NOT_FOUND, "text/plain", b"not found\n")
 
@@ -385,11 +446,12 @@ class LiveView:
         after = -1
         for part in query.split("&"):
             key, _, value = part.partition("=")
-            if key == "after" and value.lstrip("-").isdigit():
+            digits = value[1:] if value.startswith("-") else value
+            if key == "after" and digits.isdigit() and len(digits) <= _MAX_DIGITS:
                 after = int(value)
         with watch.changed:
             watch.changed.wait_for(lambda: watch.rendered > after or watch._stop.is_set(),
-                                   timeout=10)
+                                   timeout=POLL_S)
             jpeg, rendered, seq = watch.jpeg, watch.rendered, watch.rendered_seq
         if jpeg is None or rendered <= after:
             req.send_response(HTTPStatus.NO_CONTENT)
@@ -417,7 +479,7 @@ class LiveView:
             with watch.changed:
                 watch.changed.wait_for(
                     lambda sent=sent: watch.result_count != sent or watch._stop.is_set(),
-                    timeout=15)
+                    timeout=KEEPALIVE_S)
                 fresh = [(n, e) for n, e in watch.results if n > sent]
             if not fresh:
                 req.wfile.write(b": keep-alive\n\n")  # finds a viewer that left
@@ -425,12 +487,60 @@ class LiveView:
                 req.wfile.write(b"data: " + event.encode() + b"\n\n")
                 sent = n
             req.wfile.flush()
+            if _unsent(req.connection) > MAX_UNSENT:
+                raise _SlowReader
 
     def close(self) -> None:
         self.server.shutdown()
         self.server.server_close()
         for watch in list(self.watches.values()):
             watch.close()
+
+
+class _SlowReader(Exception):
+    """A results viewer left more than ``MAX_UNSENT`` bytes unread."""
+
+
+def _unsent(sock: Any) -> int:
+    """Bytes written to ``sock`` that its peer has not taken yet (Linux's TIOCOUTQ: 0 where
+    it cannot be read, and a viewer is then dropped only by the write timeout)."""
+    try:
+        import fcntl
+        import termios
+
+        raw = fcntl.ioctl(sock.fileno(), termios.TIOCOUTQ, b"\0\0\0\0")
+        return int.from_bytes(raw, "little", signed=True)
+    except (ImportError, OSError, AttributeError):
+        return 0
+
+
+class _BoundedServer(ThreadingHTTPServer):
+    """A thread per connection, at most ``MAX_CONNECTIONS`` of them: a connection beyond is
+    closed at once (counted), so half-sent requests cannot take every thread and memory."""
+
+    request_queue_size = BACKLOG
+
+    def __init__(self, address: tuple[str, int], handler: Any, view: LiveView) -> None:
+        super().__init__(address, handler)
+        self.view = view
+        self._open = threading.BoundedSemaphore(MAX_CONNECTIONS)
+
+    def process_request(self, request: Any, client_address: Any) -> None:
+        if not self._open.acquire(blocking=False):
+            self.view.count("refused_connection")
+            self.shutdown_request(request)
+            return
+        try:
+            super().process_request(request, client_address)
+        except Exception:
+            self._open.release()
+            raise
+
+    def process_request_thread(self, request: Any, client_address: Any) -> None:
+        try:
+            super().process_request_thread(request, client_address)
+        finally:
+            self._open.release()
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -442,7 +552,12 @@ def main(argv: Sequence[str] | None = None) -> int:
                     help="pictures rendered per second and stream, at most (default 5)")
     ap.add_argument("--max-width", type=int, default=960,
                     help="pictures scaled down to this width, at most (default 960)")
-    ap.add_argument("--max-viewers", type=int, default=16)
+    ap.add_argument("--max-viewers", type=int, default=16,
+                    help=f"watching connections at once (default 16; {MAX_PER_CLIENT} per "
+                    "client address)")
+    ap.add_argument("--max-pixels", type=int, default=4096 * 2160,
+                    help="largest picture drawn, from its header (default: %(default)s, "
+                    "DCI 4K)")
     ap.add_argument("--video-key", default=DEFAULT_VIDEO_KEY,
                     help="the service's video_key ('' for none)")
     add_service_arguments(ap)
@@ -452,7 +567,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         try:
             view = LiveView(client, args.host, args.port, max_fps=args.max_fps,
                             max_width=args.max_width, video_key=args.video_key or None,
-                            max_viewers=args.max_viewers)
+                            max_viewers=args.max_viewers, max_pixels=args.max_pixels)
         except (OSError, ValueError) as exc:
             raise SystemExit(f"arcf-view: {exc}") from exc
         log.info("live view on %s", view.url)
