@@ -33,6 +33,8 @@ class Service:
         self.settings = settings
         self._stop = threading.Event()
         self.metrics_url = ""
+        #: seconds the start-up's own start took (``_serve_a_start``)
+        self.ready_s = 0.0
 
     def start(self) -> Service:
         s = self.settings
@@ -114,7 +116,35 @@ class Service:
                         if s.mode == "router" else None)
         self._wait_for_workers(self.settings.worker_start_s)
         self.cluster.join()  # now others may hand streams to us, and we take ours
+        self.ready_s = self._serve_a_start(self.settings.worker_start_s)
+        metrics.READY.set(1)
         return self
+
+    def _serve_a_start(self, timeout: float) -> float:
+        """Start and stop a session through the service's own control key, as a station
+        does (on a stream of this instance's, ``_ready-<instance>-<k>``), and return how long
+        that took. Ready is announced only after it: a worker's token says it runs, not that
+        a start reaches it through the router, the control plane and back."""
+        from .client import ServiceError, TrackingClient
+
+        s = self.settings
+        client = TrackingClient(session=self.session, prefix=s.prefix, tie_sessions=False)
+        stream = next(name for name in (f"_ready-{s.instance_id}-{k}" for k in range(10_000))
+                      if self.cluster.mine(name))
+        t0 = time.monotonic()
+        while True:
+            try:
+                ack = client.start(stream, (1.0, 1.0, 16.0, 16.0), preset="bacf",
+                                   timeout=min(5.0, max(timeout, 0.1)))
+                client.stop(ack.session_id, timeout=5.0)
+                break
+            except (TimeoutError, ServiceError) as exc:
+                if time.monotonic() - t0 > timeout:
+                    raise RuntimeError(f"no start served within {timeout:.0f} s: {exc}") from exc
+                log.info("start-up: a start was not served yet (%s); again", exc)
+                time.sleep(0.2)
+        client.close()
+        return time.monotonic() - t0
 
     def _wait_for_workers(self, timeout: float) -> None:
         deadline = time.monotonic() + timeout
@@ -181,6 +211,7 @@ class Service:
         # Stop intake, then leave the cluster at once: the survivors take this instance's
         # streams over (the registry entries stay, so the sessions resume there) while the
         # workers finish the frames they hold and send each session's final status.
+        metrics.READY.set(0)
         self.worker_stop.set()
         self.cluster.close()
         for p in self.procs:
@@ -235,7 +266,8 @@ def main(argv: list[str] | None = None) -> int:
         os._exit(1)  # no thread left behind may keep a service that never became ready alive
     endpoints = ", ".join(settings.listen if settings.mode == "router" else settings.connect)
     print(f"arcf-service ready: zenoh {settings.mode} {endpoints}, prefix {settings.prefix}, "
-          f"{settings.workers} workers, metrics {service.metrics_url or 'off'}", flush=True)
+          f"{settings.workers} workers, metrics {service.metrics_url or 'off'} (a start served "
+          f"in {1e3 * service.ready_s:.0f} ms)", flush=True)
     try:
         service.wait()
     finally:

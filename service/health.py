@@ -1,6 +1,7 @@
 """``arcf-healthcheck``: exit 0 when the local service instance is healthy (container probe).
 
-Healthy means its metrics endpoint answers and reports at least one live worker. It reads the
+Healthy means its metrics endpoint answers, the instance is ready (it served a start of its
+own through its control key: ``arcf_ready`` 1) and reports at least one live worker. It reads the
 port and host as the service reads its ``ARCF_SERVICE_*`` variables (``ServiceSettings``), so
 the probe needs no arguments inside the image.
 """
@@ -19,9 +20,12 @@ def check(url: str, timeout: float = 3.0) -> tuple[bool, str]:
     except OSError as exc:
         return False, f"metrics endpoint {url} unreachable: {exc}"
     try:
-        workers = len(series(text).get("arcf_worker_busy_ratio", []))
+        found = series(text)
     except ValueError as exc:  # not Prometheus text
         return False, f"metrics endpoint {url} answered something else: {exc}"
+    workers = len(found.get("arcf_worker_busy_ratio", []))
+    if not any(value == 1 for _, value in found.get("arcf_ready", [])):
+        return False, "not ready: no start served yet"
     if workers == 0:
         return False, "no live worker reported"
     return True, f"ok: {workers} workers"

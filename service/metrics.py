@@ -52,6 +52,9 @@ HANDOVERS = Counter("arcf_sessions_handed_over_total",
 STREAMS = Gauge("arcf_active_streams", "Streams with at least one session",
                 multiprocess_mode="livesum")
 SESSIONS = Gauge("arcf_active_sessions", "Tracking sessions", multiprocess_mode="livesum")
+READY = Gauge("arcf_ready", "1 once the instance has served a start of its own through its "
+              "control key (what its ready line and health check mean)",
+              multiprocess_mode="max")
 BUSY = Gauge("arcf_worker_busy_ratio", "Share of wall time a worker spent working",
              ["worker"], multiprocess_mode="liveall")
 

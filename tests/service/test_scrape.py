@@ -23,6 +23,9 @@ arcf_decode_seconds_bucket{le="0.01"} 4.0
 arcf_decode_seconds_bucket{le="+Inf"} 5.0
 arcf_decode_seconds_count 5.0
 arcf_decode_seconds_sum 0.02
+# HELP arcf_ready Served a start of its own.
+# TYPE arcf_ready gauge
+arcf_ready 1.0
 # HELP arcf_worker_busy_ratio Busy share per worker.
 # TYPE arcf_worker_busy_ratio gauge
 arcf_worker_busy_ratio{worker="0"} 0.5
@@ -71,9 +74,12 @@ def test_scrape_reads_a_real_endpoint(server: tuple[str, dict[str, str]]) -> Non
     assert scrape(None) == {}
 
 
-def test_health_check_needs_a_live_worker(server: tuple[str, dict[str, str]]) -> None:
+def test_health_check_needs_readiness_and_a_live_worker(
+        server: tuple[str, dict[str, str]]) -> None:
     url, page = server
     assert check(url) == (True, "ok: 2 workers")
+    page["text"] = EXPOSITION.replace("arcf_ready 1.0", "arcf_ready 0.0")
+    assert check(url) == (False, "not ready: no start served yet")
     page["text"] = EXPOSITION.split("# HELP arcf_worker_busy_ratio")[0]
     ok, message = check(url)
     assert not ok and "no live worker" in message
