@@ -22,7 +22,8 @@ says otherwise: anyone who reaches the page sees the video.
 
 What a client can hold is bounded like the service's inputs: at most ``max_viewers``
 watching connections, ``MAX_PER_CLIENT`` of them from one address; at most
-``MAX_CONNECTIONS`` open connections (more are closed at once) with a listen backlog of
+``MAX_CONNECTIONS`` open connections, ``MAX_CONNECTIONS_PER_CLIENT`` from one address (more
+are closed at once) with a listen backlog of
 ``BACKLOG``; ``TIMEOUT_S`` to send a request and to take each write (a viewer that stops
 reading, or lets ``MAX_UNSENT`` bytes of events pile up unread, is dropped and its place
 freed); pictures above ``max_pixels`` (from their header, before decoding) are not drawn;
@@ -68,8 +69,10 @@ _RECENT = 8
 _HISTORY = 600
 #: watching connections (pictures, results) one client address may hold
 MAX_PER_CLIENT = 4
-#: open connections at once (each is a thread); beyond, new ones are closed unanswered
+#: open connections at once (each is a thread), and from one client address; beyond, new
+#: ones are closed unanswered
 MAX_CONNECTIONS = 64
+MAX_CONNECTIONS_PER_CLIENT = 16
 #: connections the kernel queues before they are accepted
 BACKLOG = 128
 #: seconds a client has to send its request, and to take each write
@@ -515,8 +518,10 @@ def _unsent(sock: Any) -> int:
 
 
 class _BoundedServer(ThreadingHTTPServer):
-    """A thread per connection, at most ``MAX_CONNECTIONS`` of them: a connection beyond is
-    closed at once (counted), so half-sent requests cannot take every thread and memory."""
+    """A thread per connection, at most ``MAX_CONNECTIONS`` of them and
+    ``MAX_CONNECTIONS_PER_CLIENT`` from one address: a connection beyond is closed at once
+    (counted), so half-sent requests cannot take every thread and memory, nor one client
+    every place."""
 
     request_queue_size = BACKLOG
 
@@ -524,23 +529,42 @@ class _BoundedServer(ThreadingHTTPServer):
         super().__init__(address, handler)
         self.view = view
         self._open = threading.BoundedSemaphore(MAX_CONNECTIONS)
+        self._lock = threading.Lock()
+        self._by_client: dict[str, int] = {}
 
     def process_request(self, request: Any, client_address: Any) -> None:
-        if not self._open.acquire(blocking=False):
+        client = client_address[0]
+        with self._lock:
+            mine = self._by_client.get(client, 0)
+            if mine < MAX_CONNECTIONS_PER_CLIENT and self._open.acquire(blocking=False):
+                self._by_client[client] = mine + 1
+                admitted = True
+            else:
+                admitted = False
+        if not admitted:
             self.view.count("refused_connection")
             self.shutdown_request(request)
             return
         try:
             super().process_request(request, client_address)
         except Exception:
-            self._open.release()
+            self._release(client)
             raise
+
+    def _release(self, client: str) -> None:
+        with self._lock:
+            left = self._by_client[client] - 1
+            if left:
+                self._by_client[client] = left
+            else:
+                del self._by_client[client]
+            self._open.release()
 
     def process_request_thread(self, request: Any, client_address: Any) -> None:
         try:
             super().process_request_thread(request, client_address)
         finally:
-            self._open.release()
+            self._release(client_address[0])
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -264,7 +264,7 @@ class MavlinkCameras:
         self.conn = mavutil.mavlink_connection(connection, source_system=system_id,
                                                source_component=ids[0], autoreconnect=True,
                                                udp_timeout=link_timeout_s)
-        #: listening: addresses that sent a station heartbeat (kept first), newest last
+        #: listening: addresses that sent a station heartbeat (kept first), in arrival order
         self._stations: dict[Any, None] = {}
         self._send_lock = threading.Lock()
         self._state_lock = threading.Lock()
@@ -505,7 +505,8 @@ class MavlinkCameras:
     def _trim_peers(self, station: bool) -> None:
         """A listening link's peers: the sender of the last packet, if it was a station's
         heartbeat, joins the stations; beyond ``MAX_PEERS`` addresses, the least recently
-        heard that are not stations are forgotten (then the oldest stations). pymavlink
+        heard that are not stations are forgotten. A station keeps its place while it is
+        heard (``link_timeout_s``); a new one gets a free or a quiet station's place. pymavlink
         keeps the addresses (``clients``, with when each was last heard) but not which one
         sent a message: that is the one heard last, as each message comes from the datagram
         just read."""
@@ -515,10 +516,17 @@ class MavlinkCameras:
             return
         if station and alive:  # the sender of the last datagram: the one heard last
             sender = max(alive, key=alive.__getitem__)
-            self._stations.pop(sender, None)
-            self._stations[sender] = None
-            while len(self._stations) > MAX_PEERS:
-                del self._stations[next(iter(self._stations))]
+            if sender not in self._stations:
+                # a newcomer takes the place of a station gone quiet (link_timeout_s), never
+                # of one still heard: a flood of forged heartbeats cannot push a live
+                # station out (signing, --signing-key, keeps forgeries out altogether)
+                now = time.time()
+                quiet = [a for a in self._stations
+                         if now - alive.get(a, 0.0) > self.link_timeout_s]
+                for address in quiet[:max(0, len(self._stations) + 1 - MAX_PEERS)]:
+                    del self._stations[address]
+                if len(self._stations) < MAX_PEERS:
+                    self._stations[sender] = None
         if len(clients) <= MAX_PEERS:
             return
         keep = sorted(clients, key=lambda a: (a in self._stations, alive.get(a, 0.0)),
@@ -808,3 +816,7 @@ __all__ = [
     "tracking_status",
     "whole",
 ]
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -210,6 +210,7 @@ def main() -> int:
             heavy_sessions.clear()
             for ack in heavy:
                 client.stop(ack.session_id)
+            heavy.clear()
             window = fleet.window(t0 + 1.0, t1, victims)
             first = fleet.window(t0 + 1.0, t1, victims[:1])
             errors1 = errors_by_kind(svc.metrics_url)

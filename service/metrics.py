@@ -27,7 +27,8 @@ FRAMES_DROPPED = Counter(
 )
 VIDEO_RESYNCS = Counter(
     "arcf_video_resyncs_total",
-    "Video streams resynchronised at their next keyframe, by cause (gap, corrupt, oversized)",
+    "Video streams resynchronised at their next keyframe, by cause (gap, corrupt, oversized, "
+    "memory: the worker passed worker_max_rss_mb)",
     ["cause"],
 )
 SHED = Counter(

@@ -111,6 +111,10 @@ class ServiceSettings:
         "more than any of them (limit_exceeded, counted in arcf_sessions_shed_total); one "
         "per 2 s. Among equals nothing is shed: each stream keeps its newest frames and "
         "drops the rest (counted); a stream alone on its worker may use all of it. 0: off"))
+    worker_max_rss_mb: int = field(default=2048, metadata=_about(
+        "a worker whose resident memory passes this (checked every second) resets its video "
+        "decoders, each stream resuming at its next keyframe (decode_error, resync cause "
+        "'memory'), and returns its freed memory to the system; 0: off"))
     metrics_host: str = field(default="127.0.0.1",
                               metadata=_about("Prometheus endpoint address"))
     metrics_port: int = field(default=9464, metadata=_about(
@@ -155,6 +159,8 @@ class ServiceSettings:
                 and self.session_budget_ms > 0):
             raise ValueError("session_idle_s and session_budget_ms must be > 0, "
                              "client_grace_s >= 0")
+        if self.worker_max_rss_mb < 0:
+            raise ValueError("worker_max_rss_mb must be >= 0 (0: off)")
         if not 0 <= self.worker_budget <= 1:
             raise ValueError(f"worker_budget must be within [0, 1] (0: off), got "
                              f"{self.worker_budget!r}")

@@ -439,15 +439,32 @@ class Worker:
         self.responses.put(SessionsEnded(self.index, (s.session_id,), reason))
         log.info("worker %d: session %s ended: %s", self.index, s.session_id, reason)
 
+    def _release_memory(self, rss: int) -> None:
+        """Over ``worker_max_rss_mb``: every video decoder is dropped (each stream resumes at
+        its next keyframe, told why) and glibc returns its free memory to the system. A
+        decoder holds its reference pictures and FFmpeg's per-unit state; nothing else in a
+        worker grows with what a station sends."""
+        reset = [st for st in self.streams.values() if st.decoder is not None]
+        for st in reset:
+            st.decoder, st.held = None, None
+            st.unit_times.clear()
+            self.metrics.VIDEO_RESYNCS.labels(cause="memory").inc()
+            self._error(st, ErrorCode.DECODE_ERROR, f"the video decoder was reset: the worker's "
+                        f"memory ({rss >> 20} MB) passed worker_max_rss_mb "
+                        f"({self.settings.worker_max_rss_mb}); waiting for a keyframe", None)
+        released = _trim_heap()
+        log.warning("worker %d: %d MB resident, over worker_max_rss_mb: %d video decoder(s) "
+                    "reset%s", self.index, rss >> 20, len(reset),
+                    ", free memory returned" if released else "")
+
     def _shed(self, busy: float, window_s: float) -> None:
         """The per-worker budget: once a second, with the window's busy share. A worker busier
         than ``worker_budget`` while a stream's frames wait (or are dropped) for
-        ``OVER_BUDGET_WINDOWS`` windows ends its costliest consumer: every session of a stream
-        whose decoding costs more than any one session's tracking (a video stream that is
-        expensive to decode), else the session whose tracking costs most. Costliest by what a
-        turn of the stream costs (the wait it puts on every other stream), and only if that is
-        ``UNFAIR`` times a starved stream's turn; a starved stream that is itself the
-        costliest is only behind its own work: nothing is shed for it."""
+        ``OVER_BUDGET_WINDOWS`` windows sheds its costliest stream (:meth:`_shed_stream`).
+        Costliest by what a turn of the stream costs (the wait it puts on every other
+        stream), and only if that is ``UNFAIR`` times a starved stream's turn; a starved
+        stream that is itself the costliest is only behind its own work: nothing is shed for
+        it."""
         streams = list(self.streams.values())
         starved = set()
         for st in streams:
@@ -469,29 +486,41 @@ class Worker:
         else:
             self.over_budget = 0
         if self.over_budget >= OVER_BUDGET_WINDOWS and heaviest is not None:
-            self.over_budget = 0
-            stream = self.streams[heaviest]
-            session = max(stream.sessions.values(), key=lambda x: x.window_cpu_s)
-            share = f"{100 * busy:.0f} % busy, over worker_budget {100 * budget:g} %"
-            if stream.window_decode_s > session.window_cpu_s:
-                why = (f"session ended: decoding stream {heaviest!r} took "
-                       f"{1e3 * stream.window_decode_s / window_s:.0f} ms of CPU a second "
-                       f"({1e3 * stream.window_decode_s / max(stream.window_turns, 1):.0f} "
-                       "ms a turn), "
-                       f"the most on a worker {share} while other streams waited")
-                self.metrics.SHED.labels(cause="decoding").inc(len(stream.sessions))
-                for victim in list(stream.sessions.values()):
-                    self._end(victim, why, ErrorCode.LIMIT_EXCEEDED)
-            else:
-                self.metrics.SHED.labels(cause="tracking").inc()
-                self._end(session, f"session ended: its tracking took "
-                          f"{1e3 * session.window_cpu_s / window_s:.0f} ms of CPU a second, "
-                          f"the most on a worker {share} while other streams waited",
-                          ErrorCode.LIMIT_EXCEEDED)
+            # once shed, one more window over budget sheds again (the load is known to be real)
+            self.over_budget = OVER_BUDGET_WINDOWS - 1
+            self._shed_stream(self.streams[heaviest], UNFAIR * min(victims), busy, window_s)
         for st in streams:
             st.window_decode_s, st.window_turns = 0.0, 0
         for x in self.sessions.values():
             x.window_cpu_s = 0.0
+
+    def _shed_stream(self, stream: _Stream, fair_turn_s: float, busy: float,
+                     window_s: float) -> None:
+        """End what makes ``stream``'s turn cost more than ``fair_turn_s``: every session when
+        decoding it costs more than any one session's tracking; else its sessions, costliest
+        first, until what is left of its turn fits (so a stream of twelve heavy sessions is
+        brought down in one go, not one a window)."""
+        turns = max(stream.window_turns, 1)
+        sessions = sorted(stream.sessions.values(), key=lambda x: x.window_cpu_s, reverse=True)
+        share = (f"the most on a worker {100 * busy:.0f} % busy, over worker_budget "
+                 f"{100 * self.settings.worker_budget:g} %, while other streams waited")
+        if stream.window_decode_s > sessions[0].window_cpu_s:
+            why = (f"session ended: decoding stream {stream.stream_id!r} took "
+                   f"{1e3 * stream.window_decode_s / window_s:.0f} ms of CPU a second "
+                   f"({1e3 * stream.window_decode_s / turns:.0f} ms a turn), {share}")
+            self.metrics.SHED.labels(cause="decoding").inc(len(sessions))
+            for s in sessions:
+                self._end(s, why, ErrorCode.LIMIT_EXCEEDED)
+            return
+        turn_s = (stream.window_decode_s + sum(s.window_cpu_s for s in sessions)) / turns
+        for s in sessions:
+            if turn_s <= fair_turn_s:
+                break
+            turn_s -= s.window_cpu_s / turns
+            self.metrics.SHED.labels(cause="tracking").inc()
+            self._end(s, f"session ended: its tracking took {1e3 * s.window_cpu_s / window_s:.0f}"
+                      f" ms of CPU a second, on stream {stream.stream_id!r}, {share}",
+                      ErrorCode.LIMIT_EXCEEDED)
 
     def _housekeeping(self) -> None:
         """Once a second: end the sessions idle past ``session_idle_s``, report the rest."""
@@ -987,7 +1016,11 @@ class Worker:
                     self.stale_due = self._check_stale(now)
                 if now - t_window >= 1.0:
                     self.busy.set(busy_s / (now - t_window))
-                    self.memory.set(self.metrics.resident_bytes())
+                    rss = self.metrics.resident_bytes()
+                    self.memory.set(rss)
+                    if self.settings.worker_max_rss_mb and \
+                            rss > self.settings.worker_max_rss_mb << 20:
+                        self._release_memory(rss)
                     self._shed(busy_s / (now - t_window), now - t_window)
                     busy_s, t_window = 0.0, now
                     self._housekeeping()
@@ -1000,6 +1033,17 @@ class Worker:
             self._stop(sid)
         self.token.undeclare()
         self.session.close()
+
+
+def _trim_heap() -> bool:
+    """glibc's ``malloc_trim(0)``: free heap memory back to the system (the worker keeps freed
+    blocks otherwise, ``arcf.warmup.keep_freed_memory``). False where there is no glibc."""
+    import ctypes
+
+    try:
+        return bool(ctypes.CDLL("libc.so.6").malloc_trim(0))
+    except (OSError, AttributeError):
+        return False
 
 
 def _die_with_parent() -> None:

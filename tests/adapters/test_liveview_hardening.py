@@ -103,20 +103,24 @@ def test_a_results_viewer_that_stops_reading_is_dropped(view: LiveView,
         wait_until(lambda: view._viewers == 0 and not view.watches, what="its place freed")
 
 
-def test_half_sent_requests_cannot_hold_every_connection(view: LiveView) -> None:
+def test_half_sent_requests_cannot_hold_every_connection(
+        view: LiveView, monkeypatch: pytest.MonkeyPatch) -> None:
     """MAX_CONNECTIONS (8 here) connections that send half a request line: one more is closed
     at once, counted; each half-sent one is closed after TIMEOUT_S (1 s here), and the view
-    answers again."""
-    stuck = [connect(view) for _ in range(8)]
+    answers again. One address alone holds at most MAX_CONNECTIONS_PER_CLIENT (here 6): the
+    rest go to another."""
+    monkeypatch.setattr(liveview, "MAX_CONNECTIONS_PER_CLIENT", 6)
+    stuck = [connect(view) for _ in range(6)] + [connect(view, "127.0.0.3") for _ in range(2)]
     try:
         for s in stuck:
             s.sendall(b"GET / HT")
         wait_until(lambda: view.server._open._value == 0,  # type: ignore[attr-defined]
                    what="every connection taken")
-        with connect(view) as extra:
-            extra.sendall(b"GET / HTTP/1.1\r\nHost: view\r\n\r\n")
-            assert extra.recv(100) == b""  # closed unanswered
-        assert view.counts.get("refused_connection") == 1
+        for source in ("127.0.0.1", "127.0.0.2"):  # over its share; over the total
+            with connect(view, source) as extra:
+                extra.sendall(b"GET / HTTP/1.1\r\nHost: view\r\n\r\n")
+                assert extra.recv(100) == b""  # closed unanswered
+        assert view.counts.get("refused_connection") == 2
         for s in stuck:  # the server gives up on each, and closes it
             assert s.recv(100) == b""
         with connect(view) as fresh:

@@ -180,3 +180,38 @@ def test_a_stream_too_large_to_decode_is_refused_by_default_and_shed_when_allowe
             assert victim_id in {s.session_id for s in client.status().sessions}
     finally:
         assert svc.stop() == 0
+
+
+def test_a_worker_over_its_memory_bound_resets_its_decoders_and_streams_resume(
+        clip: Clip) -> None:
+    """With worker_max_rss_mb below what any worker uses, every second the worker drops its
+    video decoders (told and counted, cause 'memory'); the stream resumes at its next
+    keyframe each time, so results keep coming."""
+    from service.decoding import decode_compressed
+
+    images = [decode_compressed(f) for f in clip.frames[:30]]
+    units = encode_video(images, "h264", fps=30, gop=10)
+    svc = ServiceProcess("--workers", "1", "--worker-max-rss-mb", "1")
+    try:
+        with TrackingClient(connect=[svc.endpoint]) as client:
+            notices: list[ErrorMessage] = []
+            sub = client.session.declare_subscriber(KEYS.errors("cam"), lambda s: notices.append(
+                decode(s.payload.to_bytes(), expected=ErrorMessage)))
+            cam = Station(client, "cam", units, fps=30, encoding="h264")
+            client.start("cam", clip.box, preset="bacf")
+            cam.thread.start()
+            try:
+                wait_until(lambda: any("worker_max_rss_mb" in n.message for n in notices), 30,
+                           "a decoder reset told")
+                reset_at = max(r.frame_seq for r in list(cam.results)) if cam.results else 0
+                wait_until(lambda: any(r.status.value == "tracking" and r.frame_seq > reset_at
+                                       for r in list(cam.results)), 30,
+                           "tracking again after a reset")
+            finally:
+                cam.close()
+                sub.undeclare()
+            assert svc.metrics_url is not None
+            resyncs = by_label(fetch(svc.metrics_url), "arcf_video_resyncs_total", "cause")
+            assert resyncs.get("memory", 0) >= 1
+    finally:
+        assert svc.stop() == 0
