@@ -67,6 +67,8 @@ _STATIC = {"/": ("view.html", "text/html; charset=utf-8"),
 _RECENT = 8
 #: results kept per watched stream for a viewer that connects (the plot's history)
 _HISTORY = 600
+#: video units waiting to be decoded per watched stream (two seconds at 30 fps)
+_VIDEO_QUEUE = 60
 #: watching connections (pictures, results) one client address may hold
 MAX_PER_CLIENT = 4
 #: open connections at once (each is a thread), and from one client address; beyond, new
@@ -155,25 +157,45 @@ class Watch:
         self.rendered_marks = 0
         self._colours: dict[str, int] = {}
         self._decoder: StreamDecoder | None = None
+        #: video units waiting for the decoding thread (the oldest dropped beyond: the
+        #: decoder sees the gap and waits for a keyframe)
+        self._units: deque[TapFrame] = deque(maxlen=_VIDEO_QUEUE)
+        self._unit_ready = threading.Event()
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._tap = StreamTap(client, stream_id, self._on_frame, self._on_result, video_key)
-        self._thread = threading.Thread(target=self._render_loop, daemon=True,
-                                        name=f"view-{stream_id}")
-        self._thread.start()
+        self._threads = [threading.Thread(target=self._render_loop, daemon=True,
+                                          name=f"view-{stream_id}"),
+                         threading.Thread(target=self._decode_loop, daemon=True,
+                                          name=f"view-{stream_id}-video")]
+        for thread in self._threads:
+            thread.start()
 
     def _on_frame(self, frame: TapFrame) -> None:
-        if frame.is_video:  # every unit through the decoder; the picture is what is kept
-            codec = CODECS[frame.encoding]
-            if self._decoder is None or self._decoder.codec != codec:
-                self._decoder = StreamDecoder(codec, self.max_pixels)
-            out = self._decoder.decode(frame.seq, frame.payload)
-            if out.outcome is not Outcome.FRAME or out.image is None:
-                return
-            item: TapFrame | np.ndarray = out.image
-            seq = out.seq if out.seq is not None else frame.seq
-        else:  # decoded only if rendered
-            item, seq = frame, frame.seq
+        """Zenoh's callback: a video unit is queued for the decoding thread (decoding here
+        would hold Zenoh's thread, and one still decoding when the process exits aborts
+        it); a picture is kept as it came, decoded only if rendered."""
+        if frame.is_video:
+            self._units.append(frame)
+            self._unit_ready.set()
+            return
+        self._keep(frame.seq, frame)
+
+    def _decode_loop(self) -> None:
+        """Every video unit through the stream's decoder, in order; the picture is kept."""
+        while not self._stop.is_set():
+            self._unit_ready.wait(timeout=0.5)
+            self._unit_ready.clear()
+            while self._units and not self._stop.is_set():
+                frame = self._units.popleft()
+                codec = CODECS[frame.encoding]
+                if self._decoder is None or self._decoder.codec != codec:
+                    self._decoder = StreamDecoder(codec, self.max_pixels)
+                out = self._decoder.decode(frame.seq, frame.payload)
+                if out.outcome is Outcome.FRAME and out.image is not None:
+                    self._keep(out.seq if out.seq is not None else frame.seq, out.image)
+
+    def _keep(self, seq: int, item: TapFrame | np.ndarray) -> None:
         with self._lock:
             self._frames[seq] = item
             while len(self._frames) > _RECENT:
@@ -269,9 +291,11 @@ class Watch:
     def close(self) -> None:
         self._stop.set()
         self._tap.close()
+        self._unit_ready.set()
         with self.changed:
             self.changed.notify_all()
-        self._thread.join(timeout=2)
+        for thread in self._threads:
+            thread.join(timeout=5)
 
 
 def _finite(values: Sequence[float]) -> list[float | None]:

@@ -196,7 +196,8 @@ def test_a_stream_that_stops_shows_its_session_stale_until_frames_resume(frames)
                 watch = view.watches["drone-8"]
                 deadline = time.monotonic() + 30
                 while not (watch.drawn and watch.drawn[0].status.value == "stale"):
-                    assert time.monotonic() < deadline, "the picture was not drawn again"
+                    assert time.monotonic() < deadline, (
+                        "the picture was not drawn again", view.counts, watch.viewers)
                     time.sleep(0.05)
                 assert watch.drawn[0].frame_seq == notice.frame_seq  # its last box, marked
                 # frames again: tracking results, and the row leaves "stale"
