@@ -337,8 +337,10 @@ class Worker:
         self.pending: deque[dict[str, Any]] = deque()
         #: when ``_check_stale`` must look next (monotonic; inf: no session can go stale)
         self.stale_due = math.inf
-        #: consecutive one-second windows over ``worker_budget`` with a stream starved
+        #: consecutive one-second windows over ``worker_budget`` with a stream starved by the
+        #: same costliest stream (``over_stream``)
         self.over_budget = 0
+        self.over_stream: str | None = None
         threading.Thread(target=self._pump_commands, daemon=True,
                          name=f"worker-{index}-commands").start()
 
@@ -482,9 +484,13 @@ class Worker:
         victims = [turn[sid] for sid in starved if sid != heaviest]
         if (budget and busy > budget and heaviest is not None and victims
                 and turn[heaviest] > UNFAIR * min(victims)):
-            self.over_budget += 1
+            # the same stream to blame window after window: one window's noise (a frame
+            # that cost more, a preemption) never sheds anything
+            same = heaviest == self.over_stream
+            self.over_budget = self.over_budget + 1 if same else 1
+            self.over_stream = heaviest
         else:
-            self.over_budget = 0
+            self.over_budget, self.over_stream = 0, None
         if self.over_budget >= OVER_BUDGET_WINDOWS and heaviest is not None:
             # once shed, one more window over budget sheds again (the load is known to be real)
             self.over_budget = OVER_BUDGET_WINDOWS - 1
@@ -742,7 +748,7 @@ class Worker:
         for the stream's next turn, after every other stream's (its picture is held)."""
         stream.window_wait_s = max(stream.window_wait_s, (time.time_ns() - received_ns) / 1e9)
         stream.window_turns += 1
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.thread_time()
         picture = self._ingest(stream, payload, received_ns, source, unit_seq)
         if stream.held is not None:
             if picture is None:
@@ -764,7 +770,9 @@ class Worker:
                 if picture is not None and picture.has_pixels:
                     self.metrics.FRAMES_DROPPED.inc()  # decoded, superseded, not tracked
                 picture = newer
-        stream.window_decode_s += time.perf_counter() - t0
+        # CPU time, as the sessions' tracking is counted: a busy machine's preemptions must
+        # not make one stream look costlier than its equals
+        stream.window_decode_s += time.thread_time() - c0
         if picture is not None and stream.held is None:
             self._track(stream, picture)
 
@@ -884,9 +892,9 @@ class Worker:
     def _track(self, stream: _Stream, picture: _Picture) -> None:
         """Every session of the stream on one picture (or told why there is none)."""
         m = self.metrics
-        t0 = time.perf_counter()
+        c0 = time.thread_time()
         image = picture.pixels()
-        stream.window_decode_s += time.perf_counter() - t0
+        stream.window_decode_s += time.thread_time() - c0
         decode_s, received_ns = picture.decode_s, picture.received_ns
         code, text = picture.code, picture.text
         if image is not None:
