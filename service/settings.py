@@ -105,12 +105,13 @@ class ServiceSettings:
         "ends with limit_exceeded: one session must not starve the others on its worker"))
     worker_budget: float = field(default=0.9, metadata=_about(
         "share of its core above which a worker sheds load. Busier than this for 2 s while "
-        "a stream's frames waited over 100 ms or were dropped, and with a stream whose turn "
-        "(its decoding and tracking per frame served) costs twice the starved one's, it "
-        "ends that stream's costliest session, or all its sessions when its decoding costs "
-        "more than any of them (limit_exceeded, counted in arcf_sessions_shed_total); one "
-        "per 2 s. Among equals nothing is shed: each stream keeps its newest frames and "
-        "drops the rest (counted); a stream alone on its worker may use all of it. 0: off"))
+        "a stream's frames waited over 100 ms or were dropped, and with the same stream's "
+        "turn (its decoding and tracking, CPU per frame served) costing twice the starved "
+        "one's both seconds, it ends that stream's costliest sessions until its turn fits, "
+        "or all its sessions when its decoding costs more than any of them (limit_exceeded, "
+        "counted in arcf_sessions_shed_total). Among equals nothing is shed: each stream "
+        "keeps its newest frames and drops the rest (counted); a stream alone on its worker "
+        "may use all of it. 0: off"))
     worker_max_rss_mb: int = field(default=2048, metadata=_about(
         "a worker whose resident memory passes this (checked every second) resets its video "
         "decoders, each stream resuming at its next keyframe (decode_error, resync cause "
