@@ -121,30 +121,34 @@ class Service:
         return self
 
     def _serve_a_start(self, timeout: float) -> float:
-        """Start and stop a session through the service's own control key, as a station
-        does (on a stream of this instance's, ``_ready-<instance>-<k>``), and return how long
-        that took. Ready is announced only after it: a worker's token says it runs, not that
-        a start reaches it through the router, the control plane and back."""
+        """Start a session through the service's own control key, as a station does (on a
+        stream of this instance's, ``_ready-<instance>-<k>``), end it, and return how long
+        the start took. Ready is announced only after it: a worker's token says it runs, not
+        that a start reaches it through the router, the control plane and back."""
         from .client import ServiceError, TrackingClient
+        from .control import READINESS_PREFIX
 
         s = self.settings
         client = TrackingClient(session=self.session, prefix=s.prefix, tie_sessions=False)
-        stream = next(name for name in (f"_ready-{s.instance_id}-{k}" for k in range(10_000))
+        stream = next(name for name in (f"{READINESS_PREFIX}{s.instance_id}-{k}"
+                                        for k in range(10_000))
                       if self.cluster.mine(name))
         t0 = time.monotonic()
         while True:
             try:
                 ack = client.start(stream, (1.0, 1.0, 16.0, 16.0), preset="bacf",
                                    timeout=min(5.0, max(timeout, 0.1)))
-                client.stop(ack.session_id, timeout=5.0)
+                served = time.monotonic() - t0
+                log.debug("start-up: session %s served", ack.session_id)
                 break
             except (TimeoutError, ServiceError) as exc:
                 if time.monotonic() - t0 > timeout:
                     raise RuntimeError(f"no start served within {timeout:.0f} s: {exc}") from exc
                 log.info("start-up: a start was not served yet (%s); again", exc)
                 time.sleep(0.2)
+        self.control.end_readiness_checks()
         client.close()
-        return time.monotonic() - t0
+        return served
 
     def _wait_for_workers(self, timeout: float) -> None:
         deadline = time.monotonic() + timeout

@@ -43,6 +43,11 @@ from .commands import (
 __all__ = ["ControlPlane", "SessionRecord", "owner", "place"]
 
 log = logging.getLogger("arcf.service.control")
+#: Streams whose id starts so are the start-up's own readiness check (``service.app``): their
+#: session lives for one start and stop on this instance and is never in the cluster's
+#: registry (a registry entry could outlive it in another instance's copy, and be "taken
+#: over" when this instance dies).
+READINESS_PREFIX = "_ready-"
 
 
 def place(stream_id: str, streams_per_worker: Sequence[int]) -> int:
@@ -288,7 +293,20 @@ class ControlPlane:
                 metrics.HANDOVERS.inc()
                 log.info("handed over session %s of stream %s", sid, spec.stream_id)
         for sid in set(local) - set(specs):  # withdrawn elsewhere: nothing to run any more
+            if not local[sid].stream_id.startswith(READINESS_PREFIX):  # never registered
+                self._drop_local(sid)
+
+    def end_readiness_checks(self) -> int:
+        """End the start-up's own sessions (streams ``READINESS_PREFIX...``) here, including
+        one whose start timed out at the requester but was made: they are in no registry, so
+        a stop request about them could be answered by an instance that never knew them.
+        Returns how many ended."""
+        with self.lock:
+            mine = [sid for sid, r in self.sessions.items()
+                    if r.stream_id.startswith(READINESS_PREFIX)]
+        for sid in mine:
             self._drop_local(sid)
+        return len(mine)
 
     def _drop_local(self, session_id: str) -> None:
         with self.lock:
@@ -459,7 +477,7 @@ class ControlPlane:
             with self.lock:
                 self.sessions.pop(sid, None)
             raise
-        if self.cluster is not None:
+        if self.cluster is not None and not req.stream_id.startswith(READINESS_PREFIX):
             self.cluster.publish(SessionSpec(
                 session_id=sid, stream_id=req.stream_id, preset=req.preset,
                 overrides=dict(req.overrides), box=req.box, frame_seq=req.frame_seq,
