@@ -1,8 +1,8 @@
 """Nothing received from the network is ever executed: no module of the library, the schemas,
-the service or the load tools imports a deserialiser that can run code (pickle and its
-relatives), calls eval/exec/compile, loads YAML unsafely or lets NumPy unpickle. Messages are
-msgpack decoded into plain values and validated by pydantic; images go to OpenCV's decoders
-after a header check.
+the service, the adapters or the load tools imports a deserialiser that can run code (pickle
+and its relatives), calls eval/exec/compile, loads YAML unsafely or lets NumPy unpickle.
+Messages are msgpack decoded into plain values and validated by pydantic; images go to
+OpenCV's decoders after a header check.
 
 (multiprocessing's queues pickle the commands the main process itself builds from validated
 messages; that is process-internal, never bytes from a socket, and not flagged here.)"""
@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
-SOURCES = sorted(p for pkg in ("arcf", "schemas", "service", "loadtools")
+SOURCES = sorted(p for pkg in ("arcf", "schemas", "service", "loadtools", "adapters")
                  for p in (ROOT / pkg).rglob("*.py"))
 UNSAFE_MODULES = {"pickle", "cPickle", "_pickle", "dill", "cloudpickle", "marshal", "shelve",
                   "jsonpickle"}
