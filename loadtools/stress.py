@@ -28,8 +28,8 @@ from typing import Any
 
 import numpy as np
 
+from service.scrape import by_label, fetch, scrape
 from service.scrape import delta as metrics_delta
-from service.scrape import scrape
 
 from .driver import Clip, Fleet, Pacing, SimulatedStream
 from .ledger import meets_capacity
@@ -241,6 +241,10 @@ def run_overload(client: Any, sequences: list[Any], *, service_pid: int,
 
 
 # --------------------------------------------------------------------------- soak
+def _errors_by_kind(metrics_url: str | None) -> dict[str, float]:
+    return by_label(fetch(metrics_url), "arcf_errors_total", "kind") if metrics_url else {}
+
+
 def run_soak(client: Any, sequences: list[Any], *, service_pid: int,
              metrics_url: str | None = None, preset: str = "arcf-h", fps: float = 10.0,
              streams: int = 4, duration_s: float = 1200.0, warmup_s: float = 120.0,
@@ -253,6 +257,7 @@ def run_soak(client: Any, sequences: list[Any], *, service_pid: int,
     fleet = _stress_fleet(client, sequences, preset, fps, window)
     memory = MemorySampler(service_pid, interval=sample_s)
     before = scrape(metrics_url)
+    errors_before = _errors_by_kind(metrics_url)
     deadline: dict[str, float] = {}
     t_start = time.monotonic()
     t_end = t_start + duration_s
@@ -289,6 +294,8 @@ def run_soak(client: Any, sequences: list[Any], *, service_pid: int,
         fleet.close()
         time.sleep(1.0)
     delta = metrics_delta(before, scrape(metrics_url))
+    errors = {k: v - errors_before.get(k, 0.0) for k, v in _errors_by_kind(metrics_url).items()
+              if v - errors_before.get(k, 0.0)}
     # warm: the first window after warm-up; end: the same length at the end of the run
     span = min(max(60.0, 10 * sample_s), (duration_s - warmup_s) / 3)
     warm = memory.summary(t_start + warmup_s, t_start + warmup_s + span)
@@ -311,4 +318,5 @@ def run_soak(client: Any, sequences: list[Any], *, service_pid: int,
                            round(r[3], 1)] for r in rows],
         "ledger": fleet.ledger.accounting(),
         "metrics_delta": delta,
+        "errors_by_kind": errors,
     }
