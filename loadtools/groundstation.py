@@ -15,15 +15,6 @@ from pymavlink import mavutil
 mav = mavutil.mavlink
 
 
-def wait_until(condition: Any, timeout: float = 10.0, what: str = "condition") -> None:
-    """Poll ``condition()`` until it is true; AssertionError after ``timeout`` seconds."""
-    deadline = time.monotonic() + timeout
-    while not condition():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"not within {timeout} s: {what}")
-        time.sleep(0.02)
-
-
 class GroundStation:
     """A ground station: heartbeats at 2 Hz (while ``alive``), commands, and every message
     it receives kept by type."""

@@ -23,6 +23,7 @@ from playwright.sync_api import sync_playwright
 
 from adapters.liveview import LiveView, colour_bgr
 from loadtools.procs import ServiceProcess
+from loadtools.waiting import wait_until
 from service.client import TrackingClient
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
@@ -194,21 +195,17 @@ def test_a_stream_that_stops_shows_its_session_stale_until_frames_resume(frames)
                     timeout=15_000)
                 assert page.get_attribute("#sessions tbody tr", "class") == "stale"
                 watch = view.watches["drone-8"]
-                deadline = time.monotonic() + 30
-                while not (watch.drawn and watch.drawn[0].status.value == "stale"):
-                    assert time.monotonic() < deadline, (
-                        "the picture was not drawn again", view.counts, watch.viewers)
-                    time.sleep(0.05)
+                wait_until(lambda: watch.drawn and watch.drawn[0].status.value == "stale", 30,
+                           f"the picture drawn again (view {view.counts}, {watch.viewers} "
+                           "viewers when the wait began)")
                 assert watch.drawn[0].frame_seq == notice.frame_seq  # its last box, marked
                 # frames again: tracking results, and the row leaves "stale"
                 answered(notice.frame_seq + 1)
                 page.wait_for_function(
                     f"!document.querySelector('{state}').textContent.includes('stale')",
                     timeout=15_000)
-                deadline = time.monotonic() + 30
-                while not (watch.drawn and watch.drawn[0].status.value != "stale"):
-                    assert time.monotonic() < deadline, "the picture stayed stale"
-                    time.sleep(0.05)
+                wait_until(lambda: watch.drawn and watch.drawn[0].status.value != "stale", 30,
+                           "the picture no longer stale")
                 browser.close()
         finally:
             view.close()

@@ -16,7 +16,7 @@ import pytest
 from adapters import liveview
 from adapters.liveview import MAX_PER_CLIENT, LiveView, _picture
 from adapters.tap import TapFrame
-from loadtools.groundstation import wait_until
+from loadtools.waiting import wait_until
 from schemas import Result
 
 STREAM = "s1"

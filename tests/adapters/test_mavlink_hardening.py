@@ -26,8 +26,8 @@ from adapters.mavlink import (
     frame_size,
 )
 from loadtools.groundstation import GroundStation
-from loadtools.groundstation import wait_until as _wait
 from loadtools.procs import free_port
+from loadtools.waiting import wait_until as _wait
 from schemas import Frame
 
 mav = mavutil.mavlink

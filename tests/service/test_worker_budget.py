@@ -19,6 +19,7 @@ from arcf.eval import load_dataset
 from loadtools.driver import Clip
 from loadtools.procs import ServiceProcess
 from loadtools.video import encode_video
+from loadtools.waiting import wait_until
 from schemas import ErrorMessage, KeySpace, decode
 from service.client import TrackingClient
 from service.scrape import by_label, fetch
@@ -71,15 +72,6 @@ class Station:
         self.stop.set()
         self.thread.join(timeout=5)
         self.sub.close()
-
-
-def wait_until(condition: Any, timeout: float, what: str) -> None:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if condition():
-            return
-        time.sleep(0.1)
-    raise AssertionError(f"not within {timeout} s: {what}")
 
 
 def shed(svc: ServiceProcess) -> dict[str, float]:
