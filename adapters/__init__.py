@@ -1,11 +1,11 @@
 """Adapters between the tracking service and the protocols ground stations already speak.
 
-Each adapter is a client of the service (through :mod:`service.client`, the same SDK a station
+Each adapter is a client of the service (through :mod:`arcf.service.client`, the same SDK a station
 uses), never part of it: the service knows nothing of MAVLink, and an adapter can run on the
 ground station, on the companion computer or next to the service.
 
-* :mod:`adapters.mavlink`: the service as one MAVLink camera per video stream (the camera
+* :mod:`arcf.adapters.mavlink`: the service as one MAVLink camera per video stream (the camera
   protocol's tracking commands and ``CAMERA_TRACKING_IMAGE_STATUS``), ``arcf-mavlink``.
-* :mod:`adapters.ros2`: a ROS 2 node on rmw_zenoh: ``CompressedImage`` topics in,
+* :mod:`arcf.adapters.ros2`: a ROS 2 node on rmw_zenoh: ``CompressedImage`` topics in,
   ``Detection2DArray`` out, sessions from a topic, ``arcf-ros2``.
 """

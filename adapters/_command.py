@@ -10,7 +10,7 @@ import threading
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-from service.client import TrackingClient
+from arcf.service.client import TrackingClient
 
 #: the service's endpoint on its embedded default
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"

@@ -47,12 +47,11 @@ from typing import Any
 
 import cv2
 import numpy as np
-
-from schemas import Result
-from service.client import TrackingClient
-from service.decoding import decode_compressed
-from service.imagecheck import image_size
-from service.video import CODECS, Outcome, StreamDecoder
+from arcf.schemas import Result
+from arcf.service.client import TrackingClient
+from arcf.service.decoding import decode_compressed
+from arcf.service.imagecheck import image_size
+from arcf.service.video import CODECS, Outcome, StreamDecoder
 
 from ._command import add_service_arguments, prepare, service_client
 from .record import PALETTE

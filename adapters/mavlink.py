@@ -63,11 +63,10 @@ from typing import Any
 
 os.environ.setdefault("MAVLINK20", "1")
 
+from arcf.schemas import ErrorCode, Frame, Result, ResultStatus, TrackState
+from arcf.service.client import ServiceError, TrackingClient
+from arcf.service.imagecheck import image_size
 from pymavlink import mavutil
-
-from schemas import ErrorCode, Frame, Result, ResultStatus, TrackState
-from service.client import ServiceError, TrackingClient
-from service.imagecheck import image_size
 
 from ._command import (
     add_override_arguments,

@@ -38,13 +38,12 @@ from typing import Any, BinaryIO
 
 import cv2
 import numpy as np
+from arcf.schemas import Result
+from arcf.schemas.export import message_schema
+from arcf.service import foxglove
+from arcf.service.client import TrackingClient
+from arcf.service.video import CODECS, KEYFRAME_TYPES, nal_units
 from mcap.writer import CompressionType, Writer
-
-from schemas import Result
-from schemas.export import message_schema
-from service import foxglove
-from service.client import TrackingClient
-from service.video import CODECS, KEYFRAME_TYPES, nal_units
 
 from ._command import add_service_arguments, prepare, service_client
 from .tap import DEFAULT_VIDEO_KEY, StreamTap, TapFrame

@@ -32,7 +32,7 @@ little-endian int64 and the 16-byte gid with its length (zenoh's serialisation, 
 rmw_zenoh writes it since Jazzy 0.2.4 / Rolling 0.6.0; tokens are
 ``@ros2_lv/<domain>/<zid>/<node id>/<entity id>/<NN|MP|MS>/<enclave>/<namespace>/<node>``
 followed, for topics, by ``/<topic>/<type>/<hash>/<qos>``, with every ``/`` inside a name
-written ``%``. CDR and type hashes come from ``rosbags`` (:mod:`adapters.ros2_types`).
+written ``%``. CDR and type hashes come from ``rosbags`` (:mod:`arcf.adapters.ros2_types`).
 """
 
 from __future__ import annotations
@@ -51,10 +51,9 @@ from typing import Any
 
 import numpy as np
 import zenoh
+from arcf.schemas import Result, ResultStatus, TrackState
+from arcf.service.client import ServiceError, TrackingClient
 from zenoh.ext import Int64, z_serialize
-
-from schemas import Result, ResultStatus, TrackState
-from service.client import ServiceError, TrackingClient
 
 from . import ros2_types as rt
 from ._command import (
@@ -503,7 +502,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             ap.error(f"--image needs /TOPIC=STREAM, got {item!r}")
         images[topic] = stream
     stop = prepare()
-    from service.transport import open_session
+    from arcf.service.transport import open_session
 
     with service_client(args) as client:
         try:  # refused now rather than at the first track request

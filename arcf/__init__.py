@@ -10,29 +10,66 @@ Correlation Filters for Real-Time UAV Tracking", ICCV 2019) in NumPy/OpenCV.
 ...     print(step.result.box, step.seconds)             # the one loop, timed per frame
 """
 
-from .errors import (
-    ARCFError,
-    ColorNamesNotFoundError,
-    InvalidBoxError,
-    InvalidFrameError,
-    NotInitializedError,
-    UnknownPresetError,
-)
-from .presets import (
-    ARCF_H,
-    ARCF_HC,
-    BACF,
-    PRESETS,
-    RELEASE_COMPATIBLE,
-    ScaleFilterParams,
-    TrackerParams,
-    make_params,
-)
-from .run import SequenceRun, Step, run_sequence, track_frames
-from .tracker import ARCFTracker, TrackResult, create_tracker
-from .warmup import warm_up
+# The names below load on first use (PEP 562), so that ``import arcf.schemas`` or a client of
+# ``arcf.service`` does not pay for the tracker's NumPy/OpenCV/Numba stack.
+from __future__ import annotations
 
-__version__ = "0.1.0"
+import importlib
+from importlib.metadata import PackageNotFoundError, version
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from .errors import (
+        ARCFError,
+        ColorNamesNotFoundError,
+        InvalidBoxError,
+        InvalidFrameError,
+        NotInitializedError,
+        UnknownPresetError,
+    )
+    from .presets import (
+        ARCF_H,
+        ARCF_HC,
+        BACF,
+        PRESETS,
+        RELEASE_COMPATIBLE,
+        ScaleFilterParams,
+        TrackerParams,
+        make_params,
+    )
+    from .run import SequenceRun, Step, run_sequence, track_frames
+    from .tracker import ARCFTracker, TrackResult, create_tracker
+    from .warmup import warm_up
+
+try:  # the one place the version is written is pyproject.toml
+    __version__ = version("arcf")
+except PackageNotFoundError:  # a source tree that was never installed
+    __version__ = "0+unknown"
+
+#: public name -> the module that defines it
+_HOME = {
+    **dict.fromkeys(("ARCFError", "ColorNamesNotFoundError", "InvalidBoxError",
+                     "InvalidFrameError", "NotInitializedError", "UnknownPresetError"), "errors"),
+    **dict.fromkeys(("ARCF_H", "ARCF_HC", "BACF", "PRESETS", "RELEASE_COMPATIBLE",
+                     "ScaleFilterParams", "TrackerParams", "make_params"), "presets"),
+    **dict.fromkeys(("SequenceRun", "Step", "run_sequence", "track_frames"), "run"),
+    **dict.fromkeys(("ARCFTracker", "TrackResult", "create_tracker"), "tracker"),
+    "warm_up": "warmup",
+}
+
+
+def __getattr__(name: str) -> Any:
+    home = _HOME.get(name)
+    if home is None:
+        raise AttributeError(f"module 'arcf' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f".{home}", __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted([*globals(), *_HOME])
+
 
 __all__ = [
     "ARCF_H",

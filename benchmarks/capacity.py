@@ -30,9 +30,9 @@ import time
 from pathlib import Path
 from typing import Any
 
-from loadtools.loadtest import passes, run_load
-from loadtools.procs import ServiceProcess
-from loadtools.system import machine
+from arcf.loadtools.loadtest import passes, run_load
+from arcf.loadtools.procs import ServiceProcess
+from arcf.loadtools.system import machine
 
 
 def image_size(seq: Any) -> list[int]:

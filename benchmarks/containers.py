@@ -25,13 +25,14 @@ from pathlib import Path
 from statistics import median
 from typing import Any
 
+from arcf.loadtools.compose import INSTANCES, ComposeStack, stack_env
+from arcf.loadtools.driver import Clip, failover_fleet
+from arcf.loadtools.procs import free_port
+from arcf.service.client import TrackingClient
+from arcf.service.cluster import owner
+
 from arcf.data import data_root
 from arcf.eval import load_dataset
-from loadtools.compose import INSTANCES, ComposeStack, stack_env
-from loadtools.driver import Clip, failover_fleet
-from loadtools.procs import free_port
-from service.client import TrackingClient
-from service.cluster import owner
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -43,16 +43,16 @@ from collections.abc import Callable
 from typing import Any
 
 import numpy as np
+from arcf.loadtools.driver import Clip, Fleet, Pacing
+from arcf.loadtools.procs import ServiceProcess
+from arcf.loadtools.system import machine
+from arcf.loadtools.video import encode_video
+from arcf.schemas import Frame, KeySpace, encode
+from arcf.service.client import ServiceError, TrackingClient
+from arcf.service.foxglove import compressed_video
+from arcf.service.scrape import by_label, delta, fetch, scrape, series
 
 from arcf.eval import load_dataset
-from loadtools.driver import Clip, Fleet, Pacing
-from loadtools.procs import ServiceProcess
-from loadtools.system import machine
-from loadtools.video import encode_video
-from schemas import Frame, KeySpace, encode
-from service.client import ServiceError, TrackingClient
-from service.foxglove import compressed_video
-from service.scrape import by_label, delta, fetch, scrape, series
 
 KEYS = KeySpace()
 

@@ -51,13 +51,13 @@ from typing import Any
 import numpy as np
 
 os.environ.setdefault("MAVLINK20", "1")
+from arcf.loadtools.groundstation import GroundStation
+from arcf.loadtools.procs import ServiceProcess, free_port
+from arcf.loadtools.system import machine
+from arcf.service.client import TrackingClient
 from pymavlink import mavutil
 
 from arcf.eval import load_dataset
-from loadtools.groundstation import GroundStation
-from loadtools.procs import ServiceProcess, free_port
-from loadtools.system import machine
-from service.client import TrackingClient
 
 mav = mavutil.mavlink
 
@@ -152,7 +152,7 @@ def phase(name: str, adapter: Adapter, seconds: float, probe: Callable[[], float
 
 def mavlink_rows(svc: ServiceProcess, bomb: bytes, seconds: float) -> list[dict[str, Any]]:
     port = free_port()
-    adapter = Adapter("adapters.mavlink", ["--camera", "cam1", "--camera", "bomb=101",
+    adapter = Adapter("arcf.adapters.mavlink", ["--camera", "cam1", "--camera", "bomb=101",
                                            "--mavlink", f"udpin:127.0.0.1:{port}",
                                            "-e", svc.endpoint, "--preset", "bacf"])
     station = GroundStation(port, 100)
@@ -237,7 +237,7 @@ def mavlink_rows(svc: ServiceProcess, bomb: bytes, seconds: float) -> list[dict[
 
 def view_rows(svc: ServiceProcess, bomb: bytes, seconds: float) -> list[dict[str, Any]]:
     port = free_port()
-    adapter = Adapter("adapters.liveview", ["--port", str(port), "-e", svc.endpoint])
+    adapter = Adapter("arcf.adapters.liveview", ["--port", str(port), "-e", svc.endpoint])
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline:
         with contextlib.suppress(OSError), socket.create_connection(("127.0.0.1", port), 1):

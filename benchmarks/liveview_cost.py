@@ -23,11 +23,12 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from arcf.loadtools.procs import ServiceProcess, free_port
+from arcf.loadtools.video import encode_video
+from arcf.service.client import TrackingClient
+from arcf.service.decoding import decode_compressed
+
 from arcf.eval import load_dataset
-from loadtools.procs import ServiceProcess, free_port
-from loadtools.video import encode_video
-from service.client import TrackingClient
-from service.decoding import decode_compressed
 
 TICK = os.sysconf("SC_CLK_TCK")
 
@@ -83,7 +84,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
         threading.Thread(target=publish, daemon=True).start()
         view = subprocess.Popen(
-            [sys.executable, "-m", "adapters.liveview", "--port", str(port), "-e",
+            [sys.executable, "-m", "arcf.adapters.liveview", "--port", str(port), "-e",
              service.endpoint], stderr=subprocess.DEVNULL)
         try:
             time.sleep(3.0)  # started, connected

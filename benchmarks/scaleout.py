@@ -27,13 +27,14 @@ import time
 from pathlib import Path
 from typing import Any
 
+from arcf.loadtools.driver import Clip, Fleet, failover_fleet
+from arcf.loadtools.loadtest import run_load
+from arcf.loadtools.procs import RouterProcess, ServiceProcess, start_instances
+from arcf.loadtools.system import process_tree
+from arcf.service.client import TrackingClient
+from arcf.service.cluster import owner
+
 from arcf.eval import load_dataset
-from loadtools.driver import Clip, Fleet, failover_fleet
-from loadtools.loadtest import run_load
-from loadtools.procs import RouterProcess, ServiceProcess, start_instances
-from loadtools.system import process_tree
-from service.client import TrackingClient
-from service.cluster import owner
 
 
 class Instances:
@@ -64,7 +65,7 @@ class Instances:
 
 def paced_streams(client: TrackingClient, seq: Any, args: argparse.Namespace) -> Fleet:
     """``args.streams`` streams ``cam-0``, ``cam-1``, ... at ``args.fps`` (see
-    :func:`loadtools.driver.failover_fleet`)."""
+    :func:`arcf.loadtools.driver.failover_fleet`)."""
     return failover_fleet(client, Clip.of(seq), [f"cam-{k}" for k in range(args.streams)],
                           preset=args.preset, fps=args.fps,
                           frames=int(args.max_seconds * args.fps))

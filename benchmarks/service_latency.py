@@ -17,14 +17,14 @@ import time
 
 import cv2
 import numpy as np
+from arcf.loadtools.driver import Clip, Fleet, Pacing
+from arcf.loadtools.procs import ServiceProcess
+from arcf.loadtools.system import cpu_model
+from arcf.service.client import TrackingClient
+from arcf.service.decoding import decode_compressed
 
 import arcf
 from arcf.eval import load_dataset
-from loadtools.driver import Clip, Fleet, Pacing
-from loadtools.procs import ServiceProcess
-from loadtools.system import cpu_model
-from service.client import TrackingClient
-from service.decoding import decode_compressed
 
 
 def library(preset: str, clip: Clip) -> np.ndarray:

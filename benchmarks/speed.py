@@ -193,7 +193,7 @@ def main() -> int:
     if args.stages:
         print_stages(stage_runs)
         return 0
-    from loadtools.system import cpu_model  # here: the CSRT workers' environment lacks it
+    from arcf.loadtools.system import cpu_model  # here: the CSRT workers' environment lacks it
 
     print(f"Machine: {os.cpu_count()} CPUs (`nproc`), {cpu_model()}; Python "
           f"{platform.python_version()}. FPS = frames / (init + update seconds), frames decoded "
@@ -239,9 +239,8 @@ def main() -> int:
 
 def print_stages(stage_runs: dict[str, list[tuple[int, dict]]]) -> None:
     """Per-tracker table: ms per frame of each stage over all frames, share, floor."""
+    from arcf.loadtools.system import cpu_model
     from stages import STAGES
-
-    from loadtools.system import cpu_model
 
     print(f"Machine: {os.cpu_count()} CPUs (`nproc`), {cpu_model()}; single-threaded; stage "
           "times are exclusive (a stage called inside another is charged to itself); floors "

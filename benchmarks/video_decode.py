@@ -1,5 +1,5 @@
-"""Decoding cost of a 1280x720 stream: H.264 access units (``service.video.StreamDecoder``)
-next to JPEG frames (``service.decoding.decode_compressed``, what a worker does today), on the
+"""Decoding cost of a 1280x720 stream: H.264 access units (``arcf.service.video.StreamDecoder``)
+next to JPEG frames (``arcf.service.decoding.decode_compressed``, what a worker does today), on the
 same real frames, single-threaded; and the memory one stream's decoder holds.
 
     python benchmarks/video_decode.py            # ~20 s
@@ -20,10 +20,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import av
 import cv2
 import numpy as np
+from arcf.service.decoding import decode_compressed
+from arcf.service.video import StreamDecoder
 
 from arcf.data import data_root
-from service.decoding import decode_compressed
-from service.video import StreamDecoder
 
 
 def rss_mb() -> float:

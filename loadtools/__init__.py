@@ -4,17 +4,17 @@ Nothing here is part of the server: :mod:`service` never imports this package. I
 console scripts ``arcf-loadtest`` and ``arcf-demo``, the benchmarks and the integration tests
 share:
 
-- :mod:`loadtools.driver`: **the** stream driver. A :class:`Fleet` of simulated drones, each
+- :mod:`arcf.loadtools.driver`: **the** stream driver. A :class:`Fleet` of simulated drones, each
   replaying a :class:`Clip` of real JPEG frames under a :class:`Pacing` policy (fixed rate,
   closed loop, lock-step), with its tracking sessions.
-- :mod:`loadtools.ledger`: **the** results ledger. Every frame sent and every result received,
+- :mod:`arcf.loadtools.ledger`: **the** results ledger. Every frame sent and every result received,
   per stream, and what is read from them: latency percentiles, windows, the frame accounting,
   gaps and handovers, and the one capacity criterion (:func:`meets_capacity`).
-- :mod:`loadtools.procs`: **the** way to spawn ``arcf-service`` and ``arcf-router`` processes on
-  free loopback ports.
-- :mod:`loadtools.system`: CPU and memory of process trees, and the machine's description.
-- :mod:`loadtools.loadtest` (``arcf-loadtest``), :mod:`loadtools.stress` (overload and soak
-  runs) and :mod:`loadtools.demo` (``arcf-demo``): the tools built from those parts.
+- :mod:`arcf.loadtools.procs`: **the** way to spawn ``arcf-service`` and ``arcf-router``
+  processes on free loopback ports.
+- :mod:`arcf.loadtools.system`: CPU and memory of process trees, and the machine's description.
+- :mod:`arcf.loadtools.loadtest` (``arcf-loadtest``), :mod:`arcf.loadtools.stress` (overload
+  and soak runs) and :mod:`arcf.loadtools.demo` (``arcf-demo``): the tools built from those parts.
 """
 
 from .driver import Clip, Fleet, Pacing, SimulatedStream

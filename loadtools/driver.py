@@ -3,7 +3,7 @@
 A :class:`Clip` is what one drone replays (a real sequence's JPEG bytes, passed through as they
 are, and the box its sessions start from). A :class:`Pacing` says when a stream publishes its
 next frame. A :class:`Fleet` adds and removes streams while the service runs, each with its own
-thread and tracking sessions, and records everything in a :class:`~loadtools.ledger.Ledger`.
+thread and tracking sessions, and records everything in a :class:`~arcf.loadtools.ledger.Ledger`.
 """
 
 from __future__ import annotations
@@ -55,7 +55,7 @@ class Clip:
     def as_video(self, codec: str = "h264", fps: int = 30) -> Clip:
         """The same clip as a drone camera's video: one access unit per frame, a keyframe
         every 30 (the first included, so a cycled clip restarts on a keyframe)."""
-        from service.decoding import decode_compressed
+        from arcf.service.decoding import decode_compressed
 
         from .video import encode_video
 

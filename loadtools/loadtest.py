@@ -29,11 +29,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from arcf.service.decoding import decode_compressed
+from arcf.service.scrape import delta, scrape
+from arcf.service.settings import ZENOH_SHORT_FLAGS
 
 from arcf.eval import load_dataset, score_sequence
-from service.decoding import decode_compressed
-from service.scrape import delta, scrape
-from service.settings import ZENOH_SHORT_FLAGS
 
 from .driver import Clip, Fleet, Pacing
 from .ledger import Received, meets_capacity, percentiles
@@ -183,7 +183,7 @@ def run_load(
 
     Stream k replays ``sequences[k mod len]`` (its first ``max_frames``, or ``window``,
     frames), paced by ``fps`` (0: as fast as possible), ``in_flight`` and ``aligned`` (see
-    :class:`~loadtools.driver.Pacing`); stream starts are ``stagger`` s apart.
+    :class:`~arcf.loadtools.driver.Pacing`); stream starts are ``stagger`` s apart.
 
     With ``loop`` a stream replays its sequence again from the start when it runs out (the
     sessions are re-initialised on the ground truth's first box at each wrap), so a run can last
@@ -229,7 +229,7 @@ def run_load(
     pacing = Pacing(fps=fps, in_flight=in_flight, aligned=aligned)
     with contextlib.ExitStack() as stack:
         if client is None:
-            from service.client import TrackingClient
+            from arcf.service.client import TrackingClient
 
             client = stack.enter_context(TrackingClient(connect=connect, prefix=prefix))
         fleet = stack.enter_context(Fleet(client, clips, preset=preset, pacing=pacing,

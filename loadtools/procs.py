@@ -1,8 +1,8 @@
 """Real ``arcf-service`` and ``arcf-router`` processes on free loopback ports: the one way the
 load tools, the benchmarks and the integration tests start them.
 
-Each runs the installed program (``python -m service.app`` of this interpreter, from any working
-directory), waits for its "ready" line and stops it with SIGTERM.
+Each runs the installed program (``python -m arcf.service.app`` of this interpreter, from any
+working directory), waits for its "ready" line and stops it with SIGTERM.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from collections.abc import Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
-from service.scrape import scrape
+from arcf.service.scrape import scrape
 
 
 def free_port() -> int:
@@ -123,7 +123,7 @@ class ServiceProcess(_Program):
             where = ["--listen", self.endpoint]
         metrics_port = free_port() if metrics else -1
         self.metrics_url = f"http://127.0.0.1:{metrics_port}/metrics" if metrics else None
-        super().__init__("service.app", [*where, "--workers", str(workers), "--metrics-port",
+        super().__init__("arcf.service.app", [*where, "--workers", str(workers), "--metrics-port",
                                          str(metrics_port), *extra], quiet=quiet, env=env)
         self.workers = worker_pids(self.proc.pid)
 
@@ -140,7 +140,7 @@ class RouterProcess(_Program):
 
     def __init__(self, *, quiet: bool = True) -> None:
         self.endpoint = f"tcp/127.0.0.1:{free_port()}"
-        super().__init__("service.router", ["--listen", self.endpoint], quiet=quiet, env=None)
+        super().__init__("arcf.service.router", ["--listen", self.endpoint], quiet=quiet, env=None)
 
     def __enter__(self) -> RouterProcess:
         return self

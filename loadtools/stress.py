@@ -13,10 +13,10 @@
   for a long time, with the service's memory sampled throughout: it must not grow beyond a
   small bound once warm.
 
-Both drive a :class:`~loadtools.driver.Fleet` of fixed-rate streams that are added and removed
+Both drive a :class:`~arcf.loadtools.driver.Fleet` of fixed-rate streams that are added and removed
 while the service runs. A stream replays the first ``window`` frames of a real sequence forth
 and back (a palindrome clip). Memory is sampled for the service's whole process tree
-(:class:`~loadtools.system.MemorySampler`: the anonymous memory, where a leak would show, with
+(:class:`~arcf.loadtools.system.MemorySampler`: the anonymous memory, where a leak would show, with
 PSS and RSS beside it).
 """
 
@@ -27,9 +27,8 @@ import time
 from typing import Any
 
 import numpy as np
-
-from service.scrape import by_label, fetch, scrape
-from service.scrape import delta as metrics_delta
+from arcf.service.scrape import by_label, fetch, scrape
+from arcf.service.scrape import delta as metrics_delta
 
 from .driver import Clip, Fleet, Pacing, SimulatedStream
 from .ledger import meets_capacity

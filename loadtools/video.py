@@ -9,11 +9,10 @@ from collections.abc import Iterable
 
 import av
 import numpy as np
-
-from service.video import CODECS
+from arcf.service.video import CODECS
 
 #: codec name on the wire (frame ``encoding``, CompressedVideo ``format``) -> FFmpeg's encoder
-#: (the decoder is the service's, ``service.video.CODECS``)
+#: (the decoder is the service's, ``arcf.service.video.CODECS``)
 ENCODERS = {"h264": "libx264", "h265": "libx265"}
 
 

@@ -1,10 +1,10 @@
 """Wire contract of the ARCF tracking service: messages, msgpack codec and Zenoh keys.
 
 The design is ``docs/wire-contract.md``. The pydantic models here are its source of truth;
-``schemas/json`` holds the JSON Schemas generated from them (``python -m schemas.export``) for
+``schemas/json`` holds the JSON Schemas generated from them (``python -m arcf.schemas.export``) for
 clients in other languages.
 
->>> from schemas import Frame, KeySpace, decode, encode
+>>> from arcf.schemas import Frame, KeySpace, decode, encode
 >>> frame = Frame(stream_id="cam1", seq=0, capture_ts_ns=0, encoding="jpeg", payload=b"...")
 >>> decode(encode(frame), Frame) == frame
 True

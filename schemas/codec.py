@@ -3,9 +3,9 @@
 A message on the wire is one msgpack map: ``{"v": 1, "type": "<kind>", <fields>...}`` with the
 envelope keys first, bytes as msgpack ``bin`` and ``None`` fields omitted. :func:`decode` never
 trusts its input: every way a payload can be wrong ends in a :class:`SchemaError` (a
-``ValueError``) whose ``code`` is the :class:`~schemas.messages.ErrorCode` to report to the peer,
-and whose ``request_id``/``stream_id``/``session_id``/``frame_seq`` carry whatever ids could be
-read from the bad message, so the service can still address its error reply.
+``ValueError``) whose ``code`` is the :class:`~arcf.schemas.messages.ErrorCode` to report to the
+peer, and whose ``request_id``/``stream_id``/``session_id``/``frame_seq`` carry whatever ids
+could be read from the bad message, so the service can still address its error reply.
 
 Frames are the hot path (a 100 KB JPEG at 30 fps from many streams), so the payload is copied as
 little as msgpack allows: once by :func:`encode` (into the output buffer) and once by
@@ -122,7 +122,7 @@ class OversizedPayload(SchemaError):
 
 
 class UnsupportedVersion(SchemaError):
-    """The envelope's ``v`` is not :data:`~schemas.messages.SCHEMA_VERSION`."""
+    """The envelope's ``v`` is not :data:`~arcf.schemas.messages.SCHEMA_VERSION`."""
 
     code = ErrorCode.UNSUPPORTED_VERSION
 

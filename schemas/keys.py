@@ -1,7 +1,7 @@
 """Zenoh key expressions of the wire contract, built and parsed in one place.
 
 Every key is ``<prefix>/...`` (``arcf/v1`` by default, a setting). Ids placed in keys are checked
-against :data:`~schemas.messages.ID_PATTERN`, which excludes ``/`` and every Zenoh special
+against :data:`~arcf.schemas.messages.ID_PATTERN`, which excludes ``/`` and every Zenoh special
 character (``*``, ``$``, ``?``, ``#``, ``@``): an id is always exactly one literal chunk, so a
 client cannot reach another stream's keys (or all of them) through a crafted id, and a parser
 can split keys on ``/`` without ambiguity. The prefix follows the same rule per chunk.

@@ -1,6 +1,6 @@
 """Pydantic models of every message of the wire contract (``docs/wire-contract.md``).
 
-These models are the source of truth: the msgpack codec (:mod:`schemas.codec`) validates every
+These models are the source of truth: the msgpack codec (:mod:`arcf.schemas.codec`) validates every
 incoming map against them and the JSON Schema files in ``schemas/json`` are generated from them.
 
 Design choices that apply to every model:

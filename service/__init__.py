@@ -3,5 +3,3 @@
 A thin layer around the :mod:`arcf` library (which never imports this package). See
 ``docs/service-design.md`` and ``docs/wire-contract.md``.
 """
-
-__version__ = "0.1.0"

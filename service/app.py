@@ -20,7 +20,9 @@ import time
 from collections import OrderedDict
 from typing import Any
 
-from . import __version__, multiproc
+from arcf import __version__
+
+from . import multiproc
 from .settings import ServiceSettings, add_arguments, from_arguments
 
 log = logging.getLogger("arcf.service")
@@ -40,9 +42,8 @@ class Service:
         s = self.settings
         self.metrics_dir = multiproc.prepare()  # before prometheus_client is imported
         import zenoh
+        from arcf.schemas import ErrorCode, ErrorMessage, KeySpace, encode
         from prometheus_client import start_http_server
-
-        from schemas import ErrorCode, ErrorMessage, KeySpace, encode
 
         from . import metrics
         from .cluster import Cluster
@@ -181,8 +182,7 @@ class Service:
         a dead instance; their streams are told on their error keys, and the first result
         after says ``resumed``."""
         import zenoh
-
-        from schemas import ErrorCode, ErrorMessage, encode
+        from arcf.schemas import ErrorCode, ErrorMessage, encode
 
         from . import metrics
         from .worker import worker_main

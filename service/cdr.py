@@ -3,8 +3,8 @@
 ``rosbags`` (a maintained pure-Python ROS 2 toolkit) carries each distribution's standard
 messages, serialises and parses CDR and computes type hashes; packages it does not carry
 (Foxglove's schemas, vision_msgs) are registered from their ``.msg`` text. A
-:class:`MessageTypes` is one such set: ``service.foxglove`` and ``adapters.ros2_types`` each
-declare theirs with it.
+:class:`MessageTypes` is one such set: ``arcf.service.foxglove`` and
+``arcf.adapters.ros2_types`` each declare theirs with it.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Client SDK for ground stations: publish frames, control sessions, receive results.
 
-    from service.client import TrackingClient
+    from arcf.service.client import TrackingClient
     with TrackingClient() as client:                      # connects to tcp/127.0.0.1:7447
         results = client.results("drone-1")                # subscribe before starting
         ack = client.start("drone-1", (x, y, w, h), preset="arcf-hc")
@@ -21,8 +21,7 @@ from typing import Any, Generic, TypeVar
 import cv2
 import numpy as np
 import zenoh
-
-from schemas import (
+from arcf.schemas import (
     Ack,
     ErrorMessage,
     Frame,

@@ -27,7 +27,7 @@ import threading
 from collections.abc import Callable, Iterable
 from typing import Any
 
-from schemas import MAX_BOX_COORD, KeySpace, Result, SchemaError, SessionSpec, decode, encode
+from arcf.schemas import MAX_BOX_COORD, KeySpace, Result, SchemaError, SessionSpec, decode, encode
 
 log = logging.getLogger("arcf.service.cluster")
 

@@ -6,7 +6,7 @@ worker and enqueue the command. Tracking never happens here.
 
 With several instances on one Zenoh network, every instance receives every request (clients
 query with target ALL) and exactly one answers: the owner of the request's stream (see
-:mod:`service.cluster`), or, for a request about nothing known (an unknown session, a status
+:mod:`arcf.service.cluster`), or, for a request about nothing known (an unknown session, a status
 request, a malformed message), the owner of the request itself. All instances agree on who
 that is without talking, so a client may reach the service through any of them.
 """
@@ -24,9 +24,10 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any
 
+from arcf.schemas import ErrorCode
+
 from arcf import ARCFError, make_params
 from arcf.presets import HOST_PARAMETERS, PRESETS, TUNABLE
-from schemas import ErrorCode
 
 from .cluster import Cluster, owner, weight
 from .commands import (
@@ -43,7 +44,7 @@ from .commands import (
 __all__ = ["ControlPlane", "SessionRecord", "owner", "place"]
 
 log = logging.getLogger("arcf.service.control")
-#: Streams whose id starts so are the start-up's own readiness check (``service.app``): their
+#: Streams whose id starts so are the start-up's own readiness check (``arcf.service.app``): their
 #: session lives for one start and stop on this instance and is never in the cluster's
 #: registry (a registry entry could outlive it in another instance's copy, and be "taken
 #: over" when this instance dies).
@@ -358,7 +359,7 @@ class ControlPlane:
 
     def handle(self, payload: bytes) -> bytes | None:
         """The encoded reply to a request, or None when another instance owns the answer."""
-        from schemas import (
+        from arcf.schemas import (
             ErrorMessage,
             PresetsRequest,
             ReinitRequest,
@@ -402,7 +403,7 @@ class ControlPlane:
         return encode(reply)
 
     def _dispatch(self, request: Any) -> Any:
-        from schemas import PresetsRequest, ReinitRequest, StartRequest, StopRequest
+        from arcf.schemas import PresetsRequest, ReinitRequest, StartRequest, StopRequest
 
         if isinstance(request, StartRequest):
             return self._start(request)
@@ -421,7 +422,7 @@ class ControlPlane:
         wire override is a scalar."""
         from functools import reduce
 
-        from schemas import ParameterInfo, PresetInfo, Presets
+        from arcf.schemas import ParameterInfo, PresetInfo, Presets
 
         kinds = {bool: "bool", int: "int", float: "float", str: "str"}
         wire = {k: t for k, t in TUNABLE.items()
@@ -452,7 +453,7 @@ class ControlPlane:
         return stream if stream is not None else "request:" + request.request_id
 
     def _start(self, req: Any) -> Any:
-        from schemas import Ack, SessionSpec
+        from arcf.schemas import Ack, SessionSpec
 
         if req.preset.lower().replace("_", "-") not in PRESETS:
             raise _Refused(ErrorCode.UNKNOWN_PRESET, f"unknown preset {req.preset!r}; choose "
@@ -496,7 +497,7 @@ class ControlPlane:
         return rec
 
     def _reinit(self, req: Any) -> Any:
-        from schemas import Ack
+        from arcf.schemas import Ack
 
         rec = self._record(req.session_id)
         self._forward(rec.worker, ReinitSession(rec.session_id, tuple(req.box), req.frame_seq))
@@ -512,7 +513,7 @@ class ControlPlane:
                    stream_id=rec.stream_id, message="re-initialisation queued")
 
     def _stop(self, req: Any) -> Any:
-        from schemas import Ack
+        from arcf.schemas import Ack
 
         rec = self._record(req.session_id)
         with self.lock:
@@ -526,7 +527,7 @@ class ControlPlane:
                    stream_id=rec.stream_id, message="session stopped")
 
     def _status(self, req: Any) -> Any:
-        from schemas import SessionInfo, Status
+        from arcf.schemas import SessionInfo, Status
 
         with self.lock:
             records = [(r.session_id, r.stream_id, r.preset, r.client_id)

@@ -5,9 +5,9 @@ manager of BlueOS put each encoded access unit on Zenoh as a CDR-encoded
 ``foxglove.CompressedVideo`` (``timestamp``, ``frame_id``, ``data``, ``format``), which the
 service ingests next to its own frame messages; and Foxglove opens MCAP recordings whose
 channels use its schemas (compressed image or video, image annotations), which
-``adapters.record`` writes. Both need the same definitions: they are declared once, here, in
+``arcf.adapters.record`` writes. Both need the same definitions: they are declared once, here, in
 the ``foxglove_msgs`` ROS 2 package's text (the form Foxglove reads as ``ros2msg`` schemas),
-and ``rosbags`` serialises and parses their CDR (:mod:`service.cdr`).
+and ``rosbags`` serialises and parses their CDR (:mod:`arcf.service.cdr`).
 """
 
 from __future__ import annotations

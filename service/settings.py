@@ -5,12 +5,11 @@ from __future__ import annotations
 
 import argparse
 import os
+import tomllib
 import uuid
 from dataclasses import MISSING, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
-
-import tomllib
 
 ENV_PREFIX = "ARCF_SERVICE_"
 

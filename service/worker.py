@@ -23,9 +23,7 @@ from typing import Any
 
 import cv2
 import numpy as np
-
-from arcf import ARCFError, create_tracker, warm_up
-from schemas import (
+from arcf.schemas import (
     ErrorCode,
     ErrorMessage,
     Frame,
@@ -35,6 +33,8 @@ from schemas import (
     decode,
     encode,
 )
+
+from arcf import ARCFError, create_tracker, warm_up
 
 from .commands import (
     Command,

@@ -1,7 +1,10 @@
 """The packages stay in their layers: the tracker library imports none of the others, the wire
 contract nothing of the tracker or the server, the server neither the load tools nor the
 evaluation toolkit. Checked on every import statement of every module (function-local ones
-too), and by importing the server in a fresh interpreter."""
+too), and by importing the server and an adapter in a fresh interpreter.
+
+The repository keeps one folder per role; the wheel installs them under the one ``arcf``
+namespace (pyproject's ``package-dir``): ``service/`` is ``arcf.service`` and so on."""
 
 from __future__ import annotations
 
@@ -14,20 +17,36 @@ import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
 
-#: package -> the top-level names (or dotted prefixes) it must never import
+#: folder -> the package it installs as
+PACKAGE = {"arcf": "arcf", "schemas": "arcf.schemas", "service": "arcf.service",
+           "adapters": "arcf.adapters", "loadtools": "arcf.loadtools"}
+
+#: the tracker library: ``arcf`` itself and every ``arcf.*`` that is not another role's package
+LIBRARY = "arcf library"
+
+#: folder -> the packages (dotted prefixes) its modules must never import
 FORBIDDEN = {
-    "arcf": ("schemas", "service", "loadtools", "adapters"),
-    "schemas": ("arcf", "service", "loadtools", "adapters"),
-    "service": ("loadtools", "arcf.eval", "matplotlib", "adapters", "pymavlink"),
+    "arcf": ("arcf.schemas", "arcf.service", "arcf.loadtools", "arcf.adapters"),
+    "schemas": (LIBRARY, "arcf.service", "arcf.loadtools", "arcf.adapters"),
+    "service": ("arcf.loadtools", "arcf.eval", "matplotlib", "arcf.adapters", "pymavlink"),
     # an adapter is a client of the service: its SDK and the schemas, not its internals
-    "adapters": ("loadtools", "arcf", "matplotlib", "service.worker", "service.app",
-                 "service.control"),
+    "adapters": ("arcf.loadtools", LIBRARY, "matplotlib", "arcf.service.worker",
+                 "arcf.service.app", "arcf.service.control"),
 }
+
+
+def is_library(name: str) -> bool:
+    """Whether the module ``name`` is (part of) the tracker library. ``arcf`` itself counts:
+    importing it for a name (``from arcf import create_tracker``) is importing the tracker."""
+    if name != "arcf" and not name.startswith("arcf."):
+        return False
+    return not any(name == p or name.startswith(p + ".") for p in PACKAGE.values() if p != "arcf")
 
 
 def imported(path: Path, root: Path) -> list[tuple[int, str]]:
     """(line, absolute module name) of every import in the module at ``path``."""
-    dotted = ".".join(path.relative_to(root).with_suffix("").parts)
+    parts = path.relative_to(root).with_suffix("").parts
+    dotted = ".".join([PACKAGE.get(parts[0], parts[0]), *parts[1:]])
     if path.name == "__init__.py":
         dotted = dotted.rsplit(".", 1)[0] + ".__init__"
     out = []
@@ -45,19 +64,26 @@ def imported(path: Path, root: Path) -> list[tuple[int, str]]:
     return out
 
 
-def violations(package: str, root: Path = ROOT) -> list[str]:
+def forbids(bad: str, name: str) -> bool:
+    if bad == LIBRARY:
+        return is_library(name)
+    return name == bad or name.startswith(bad + ".")
+
+
+def violations(folder: str, root: Path = ROOT) -> list[str]:
     found = []
-    for path in sorted((root / package).rglob("*.py")):
+    for path in sorted((root / folder).rglob("*.py")):
         for line, name in imported(path, root):
-            for bad in FORBIDDEN[package]:
-                if name == bad or name.startswith(bad + "."):
-                    found.append(f"{path.relative_to(root)}:{line} imports {name}")
-    return sorted(found)
+            if folder == "arcf" and name == "arcf":
+                continue  # the package's own __init__
+            if any(forbids(bad, name) for bad in FORBIDDEN[folder]):
+                found.append(f"{path.relative_to(root)}:{line} imports {name}")
+    return sorted(set(found))
 
 
-@pytest.mark.parametrize("package", sorted(FORBIDDEN))
-def test_package_stays_in_its_layer(package: str) -> None:
-    assert violations(package) == []
+@pytest.mark.parametrize("folder", sorted(FORBIDDEN))
+def test_package_stays_in_its_layer(folder: str) -> None:
+    assert violations(folder) == []
 
 
 def test_the_check_sees_relative_and_local_imports(tmp_path: Path) -> None:
@@ -65,19 +91,54 @@ def test_the_check_sees_relative_and_local_imports(tmp_path: Path) -> None:
     pkg.mkdir()
     (pkg / "__init__.py").write_text("")
     (pkg / "bad.py").write_text("def f():\n    from arcf.eval import load_dataset\n"
-                                "from loadtools import Fleet\n")
+                                "from arcf.loadtools import Fleet\n")
     (pkg / "worse.py").write_text("from ..loadtools import driver\n")
     assert violations("service", tmp_path) == [
         "service/bad.py:2 imports arcf.eval", "service/bad.py:2 imports arcf.eval.load_dataset",
-        "service/bad.py:3 imports loadtools", "service/bad.py:3 imports loadtools.Fleet",
-        "service/worse.py:1 imports loadtools", "service/worse.py:1 imports loadtools.driver"]
+        "service/bad.py:3 imports arcf.loadtools", "service/bad.py:3 imports arcf.loadtools.Fleet",
+        "service/worse.py:1 imports arcf.loadtools",
+        "service/worse.py:1 imports arcf.loadtools.driver"]
+
+
+def test_the_library_is_every_arcf_module_but_the_other_roles() -> None:
+    assert is_library("arcf") and is_library("arcf.tracker") and is_library("arcf.eval.cli")
+    assert not is_library("arcf.schemas.codec") and not is_library("arcf.service")
+    assert not is_library("arcfx") and not is_library("numpy")
+    assert forbids(LIBRARY, "arcf.features.fhog") and not forbids(LIBRARY, "arcf.schemas")
 
 
 def test_the_server_loads_without_the_tools() -> None:
-    probe = ("import sys, service.app, service.client\n"
-             "bad = sorted(m for m in sys.modules if m.split('.')[0] in ('loadtools', "
-             "'matplotlib') or m.startswith('arcf.eval'))\n"
+    probe = ("import sys, arcf.service.app, arcf.service.client\n"
+             "bad = sorted(m for m in sys.modules if m.startswith(('arcf.loadtools', "
+             "'matplotlib', 'arcf.eval')))\n"
              "print(bad)")
     out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
                          timeout=120, check=True)
     assert out.stdout.strip() == "[]"
+
+
+def test_clients_do_not_load_the_tracker() -> None:
+    """``arcf`` loads its library lazily: the wire contract, the client SDK and an adapter
+    start without the tracker's modules or Numba."""
+    probe = ("import sys, arcf.schemas, arcf.service.client, arcf.adapters.mavlink\n"
+             "print(sorted(m for m in sys.modules if m == 'numba' or m.startswith("
+             "('arcf.tracker', 'arcf.features', 'arcf.admm', 'numba.'))))")
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
+                         timeout=120, check=True)
+    assert out.stdout.strip() == "[]"
+
+
+def test_the_wheel_installs_one_namespace() -> None:
+    """Every package the wheel installs is ``arcf`` or under it (no ``service`` or
+    ``schemas`` at the top of site-packages), and each role's folder is one of them."""
+    import tomllib
+
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
+    assert all(p == "arcf" or p.startswith("arcf.") for p in project["packages"])
+    assert project["package-dir"] == {pkg: folder for folder, pkg in PACKAGE.items()}
+    for folder in PACKAGE:
+        subs = {p.parent.relative_to(ROOT).as_posix()
+                for p in (ROOT / folder).rglob("__init__.py")}
+        declared = {f for f in subs
+                    if ".".join([PACKAGE[folder], *Path(f).parts[1:]]) in project["packages"]}
+        assert declared == subs, f"{folder}: packages missing from pyproject"

@@ -19,12 +19,11 @@ import pytest
 pytest.importorskip("zenoh")
 pytest.importorskip("playwright.sync_api")
 
+from arcf.adapters.liveview import LiveView, colour_bgr
+from arcf.loadtools.procs import ServiceProcess
+from arcf.loadtools.waiting import wait_until
+from arcf.service.client import TrackingClient
 from playwright.sync_api import sync_playwright
-
-from adapters.liveview import LiveView, colour_bgr
-from loadtools.procs import ServiceProcess
-from loadtools.waiting import wait_until
-from service.client import TrackingClient
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 pytestmark = [pytest.mark.integration,

@@ -12,12 +12,11 @@ from collections.abc import Iterator
 from typing import Any
 
 import pytest
-
-from adapters import liveview
-from adapters.liveview import MAX_PER_CLIENT, LiveView, _picture
-from adapters.tap import TapFrame
-from loadtools.waiting import wait_until
-from schemas import Result
+from arcf.adapters import liveview
+from arcf.adapters.liveview import MAX_PER_CLIENT, LiveView, _picture
+from arcf.adapters.tap import TapFrame
+from arcf.loadtools.waiting import wait_until
+from arcf.schemas import Result
 
 STREAM = "s1"
 

@@ -10,10 +10,9 @@ from typing import Any
 
 import numpy as np
 import pytest
-
-from adapters.liveview import STALE_BGR, Watch, colour_bgr, draw
-from adapters.tap import TapFrame
-from schemas import Result, ResultStatus
+from arcf.adapters.liveview import STALE_BGR, Watch, colour_bgr, draw
+from arcf.adapters.tap import TapFrame
+from arcf.schemas import Result, ResultStatus
 
 
 class _Sub:

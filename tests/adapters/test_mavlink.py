@@ -17,9 +17,7 @@ import numpy as np
 import pytest
 
 os.environ.setdefault("MAVLINK20", "1")
-from pymavlink import mavutil
-
-from adapters.mavlink import (
+from arcf.adapters.mavlink import (
     TARGET_DATA_NONE,
     CameraConfig,
     MavlinkCameras,
@@ -27,12 +25,14 @@ from adapters.mavlink import (
     rectangle_box,
     tracking_status,
 )
+from arcf.loadtools.groundstation import GroundStation
+from arcf.loadtools.procs import ServiceProcess, free_port
+from arcf.schemas import Result
+from arcf.service.client import TrackingClient
+from pymavlink import mavutil
+
 from arcf.data import data_root
 from arcf.eval import load_dataset
-from loadtools.groundstation import GroundStation
-from loadtools.procs import ServiceProcess, free_port
-from schemas import Result
-from service.client import TrackingClient
 
 mav = mavutil.mavlink
 pytestmark = [pytest.mark.integration,
@@ -482,7 +482,7 @@ def test_hostile_parameters_retransmissions_and_rates(rig: dict[str, Any]) -> No
 
 def test_a_preset_or_override_the_service_refuses_is_caught_at_start_up(
         rig: dict[str, Any]) -> None:
-    from adapters.mavlink import check_preset
+    from arcf.adapters.mavlink import check_preset
 
     client = rig["client"]
     check_preset(client, "arcf-hc", {"state.reacquire": True})

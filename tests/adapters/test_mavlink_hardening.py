@@ -16,19 +16,18 @@ from typing import Any
 import pytest
 
 os.environ.setdefault("MAVLINK20", "1")
-from pymavlink import mavutil
-
-from adapters.mavlink import (
+from arcf.adapters.mavlink import (
     DONE_MAX,
     MAX_PEERS,
     CameraConfig,
     MavlinkCameras,
     frame_size,
 )
-from loadtools.groundstation import GroundStation
-from loadtools.procs import free_port
-from loadtools.waiting import wait_until as _wait
-from schemas import Frame
+from arcf.loadtools.groundstation import GroundStation
+from arcf.loadtools.procs import free_port
+from arcf.loadtools.waiting import wait_until as _wait
+from arcf.schemas import Frame
+from pymavlink import mavutil
 
 mav = mavutil.mavlink
 STREAM, COMP = "cam1", 100

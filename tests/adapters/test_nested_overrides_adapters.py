@@ -24,14 +24,13 @@ import pytest
 
 pytest.importorskip("zenoh")
 os.environ.setdefault("MAVLINK20", "1")
+from arcf.adapters import ros2_types as rt
+from arcf.adapters.ros2 import Ros2Bridge, topic_key
+from arcf.loadtools.procs import ServiceProcess, free_port
+from arcf.schemas import Result
+from arcf.service.client import TrackingClient
+from arcf.service.transport import open_session
 from pymavlink import mavutil
-
-from adapters import ros2_types as rt
-from adapters.ros2 import Ros2Bridge, topic_key
-from loadtools.procs import ServiceProcess, free_port
-from schemas import Result
-from service.client import TrackingClient
-from service.transport import open_session
 
 mav = mavutil.mavlink
 pytestmark = pytest.mark.integration

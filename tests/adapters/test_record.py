@@ -15,17 +15,17 @@ import pytest
 pytest.importorskip("zenoh")
 pytest.importorskip("mcap")
 
+from arcf.adapters.record import Recorder
+from arcf.loadtools.procs import ServiceProcess
+from arcf.loadtools.video import decode_video, encode_video
+from arcf.service import foxglove
+from arcf.service.client import TrackingClient
+from arcf.service.decoding import decode_compressed
 from mcap.reader import make_reader
 
 import arcf
-from adapters.record import Recorder
 from arcf.eval.metrics import score_sequence
 from arcf.eval.recording import score_recording
-from loadtools.procs import ServiceProcess
-from loadtools.video import decode_video, encode_video
-from service import foxglove
-from service.client import TrackingClient
-from service.decoding import decode_compressed
 
 pytestmark = pytest.mark.integration
 N = 20

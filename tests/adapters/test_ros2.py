@@ -13,18 +13,25 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 import zenoh
+from arcf.adapters import ros2_types as rt
+from arcf.adapters.ros2 import (
+    STALE,
+    Ros2Bridge,
+    attachment,
+    detection_array,
+    diagnostics,
+    topic_key,
+)
+from arcf.loadtools.procs import ServiceProcess
+from arcf.schemas import Result
+from arcf.service.client import TrackingClient
+from arcf.service.transport import open_session
 from pycdr2 import IdlStruct
 from pycdr2.types import array, float64, int32, sequence, uint8, uint32
 from zenoh.ext import Int64, z_deserialize
 
-from adapters import ros2_types as rt
-from adapters.ros2 import STALE, Ros2Bridge, attachment, detection_array, diagnostics, topic_key
 from arcf.data import data_root
 from arcf.eval import load_dataset
-from loadtools.procs import ServiceProcess
-from schemas import Result
-from service.client import TrackingClient
-from service.transport import open_session
 
 # --- the published facts (rmw_zenoh docs/design.md and generated type descriptions) ---------
 COMPRESSED_IMAGE_HASH = "RIHS01_15640771531571185e2efc8a100baf923961a4d15d5569652e6cb6691e8e371a"

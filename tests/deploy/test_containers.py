@@ -32,15 +32,16 @@ import pytest
 
 pytest.importorskip("zenoh")
 
+from arcf.loadtools.compose import INSTANCES, ComposeStack, stack_env
+from arcf.loadtools.driver import Clip, Fleet, Pacing, failover_fleet
+from arcf.loadtools.ledger import StreamRecord
+from arcf.loadtools.procs import free_port
+from arcf.service.client import TrackingClient
+from arcf.service.cluster import owner
+
 import arcf
 from arcf.data import data_root
 from arcf.eval import load_dataset
-from loadtools.compose import INSTANCES, ComposeStack, stack_env
-from loadtools.driver import Clip, Fleet, Pacing, failover_fleet
-from loadtools.ledger import StreamRecord
-from loadtools.procs import free_port
-from service.client import TrackingClient
-from service.cluster import owner
 
 ROOT = Path(__file__).resolve().parents[2]
 DEPLOY = ROOT / "deploy"

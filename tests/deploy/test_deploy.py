@@ -22,9 +22,8 @@ from typing import Any
 
 import pytest
 import yaml
-
-from loadtools.procs import free_port
-from service.settings import ServiceSettings
+from arcf.loadtools.procs import free_port
+from arcf.service.settings import ServiceSettings
 
 ROOT = Path(__file__).resolve().parents[2]
 DEPLOY = ROOT / "deploy"
@@ -142,8 +141,8 @@ def test_router_config_runs_a_router_the_service_reaches() -> None:
     conf.insert_json5("listen/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
     conf.insert_json5("plugins", "{}")  # no REST port in a test
     with zenoh.open(conf):
-        from loadtools.procs import ServiceProcess
-        from service.client import TrackingClient
+        from arcf.loadtools.procs import ServiceProcess
+        from arcf.service.client import TrackingClient
 
         svc = ServiceProcess("--zenoh-config", str(DEPLOY / "zenoh" / "service.json5"),
                              connect=f"tcp/127.0.0.1:{port}", workers=1)

@@ -15,10 +15,9 @@ from typing import Any
 
 import numpy as np
 import pytest
-
-from loadtools.driver import GOLDEN, Clip, Fleet, Pacing
-from loadtools.ledger import Ledger, meets_capacity, percentiles
-from loadtools.loadtest import run_load
+from arcf.loadtools.driver import GOLDEN, Clip, Fleet, Pacing
+from arcf.loadtools.ledger import Ledger, meets_capacity, percentiles
+from arcf.loadtools.loadtest import run_load
 
 
 def _result(session: str, seq: int, *, dropped: int = 0, status: str = "tracking",
@@ -371,8 +370,8 @@ def test_run_load_reports_what_the_ledger_saw(tmp_path) -> None:
 
 def test_a_clip_as_video_is_one_access_unit_per_frame_starting_on_a_keyframe(
         wakeboard7) -> None:
-    from loadtools.video import decode_video
-    from service.video import KEYFRAME_TYPES, nal_units
+    from arcf.loadtools.video import decode_video
+    from arcf.service.video import KEYFRAME_TYPES, nal_units
 
     clip = Clip.of(wakeboard7, limit=12)
     video = clip.as_video("h264")

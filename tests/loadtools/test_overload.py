@@ -9,13 +9,13 @@ while the service's memory is sampled.
 from __future__ import annotations
 
 import pytest
+from arcf.loadtools.procs import ServiceProcess
+from arcf.loadtools.stress import run_overload, run_soak
+from arcf.service.client import TrackingClient
+from arcf.service.settings import ServiceSettings
 
 from arcf.data import data_root
 from arcf.eval import load_dataset
-from loadtools.procs import ServiceProcess
-from loadtools.stress import run_overload, run_soak
-from service.client import TrackingClient
-from service.settings import ServiceSettings
 
 pytestmark = [pytest.mark.integration,
               pytest.mark.skipif(not (data_root() / "uav123_10fps").is_dir(),

@@ -11,9 +11,7 @@ from typing import Any
 
 import msgpack
 import pytest
-from pydantic import ValidationError
-
-from schemas import (
+from arcf.schemas import (
     MESSAGE_TYPES,
     SCHEMA_VERSION,
     Ack,
@@ -49,6 +47,7 @@ from schemas import (
     encode,
     export,
 )
+from pydantic import ValidationError
 
 NAN = float("nan")
 
@@ -696,14 +695,14 @@ def test_keys_are_canonical_zenoh_key_expressions_with_the_intended_matching() -
 
 
 def test_committed_json_schemas_are_current(tmp_path: Path) -> None:
-    """A model change without `python -m schemas.export` fails here (and in CI)."""
+    """A model change without `python -m arcf.schemas.export` fails here (and in CI)."""
     assert export.main(["--out", str(tmp_path)]) == 0
     committed = export.DEFAULT_OUT
     fresh = {p.name: p.read_bytes() for p in sorted(tmp_path.iterdir())}
     current = {p.name: p.read_bytes() for p in sorted(committed.glob("*.json"))}
-    assert sorted(fresh) == sorted(current), "run `python -m schemas.export`"
+    assert sorted(fresh) == sorted(current), "run `python -m arcf.schemas.export`"
     for name, text in fresh.items():
-        assert current[name] == text, f"{name} is stale: run `python -m schemas.export`"
+        assert current[name] == text, f"{name} is stale: run `python -m arcf.schemas.export`"
     assert export.check(committed) == []
 
 

@@ -14,12 +14,12 @@ from pathlib import Path
 
 import pytest
 import zenoh
+from arcf.loadtools.procs import ServiceProcess, free_port
+from arcf.schemas import Status, StatusRequest, decode, encode
+from arcf.service.client import TrackingClient
 
 from arcf.data import data_root
 from arcf.eval import load_dataset
-from loadtools.procs import ServiceProcess, free_port
-from schemas import Status, StatusRequest, decode, encode
-from service.client import TrackingClient
 
 ROOT = Path(__file__).resolve().parents[2]
 DEPLOY = ROOT / "deploy" / "zenoh"

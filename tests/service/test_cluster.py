@@ -6,8 +6,8 @@ from __future__ import annotations
 from types import SimpleNamespace
 from typing import Any
 
-from schemas import KeySpace, Result, SessionSpec, decode, encode
-from service.cluster import Cluster, owner, usable_box
+from arcf.schemas import KeySpace, Result, SessionSpec, decode, encode
+from arcf.service.cluster import Cluster, owner, usable_box
 
 STREAMS = [f"cam-{k}" for k in range(3000)]
 

@@ -8,10 +8,10 @@ import threading
 import time
 from typing import Any
 
-from schemas import StartRequest, decode, encode
-from service.commands import Confirmation, SessionsEnded, SessionStats, StartSession
-from service.control import ControlPlane
-from service.settings import ServiceSettings
+from arcf.schemas import StartRequest, decode, encode
+from arcf.service.commands import Confirmation, SessionsEnded, SessionStats, StartSession
+from arcf.service.control import ControlPlane
+from arcf.service.settings import ServiceSettings
 
 
 class FakeWorker:

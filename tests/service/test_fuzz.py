@@ -14,13 +14,7 @@ import cv2
 import msgpack
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
-from hypothesis import strategies as st
-
-import arcf
-from arcf import ARCFError
-from arcf.tracker import validate_box, validate_frame
-from schemas import (
+from arcf.schemas import (
     MESSAGE_TYPES,
     SCHEMA_VERSION,
     Frame,
@@ -30,8 +24,14 @@ from schemas import (
     decode,
     encode,
 )
-from service.decoding import decode_image
-from service.imagecheck import image_size
+from arcf.service.decoding import decode_image
+from arcf.service.imagecheck import image_size
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+import arcf
+from arcf import ARCFError
+from arcf.tracker import validate_box, validate_frame
 
 FAST = settings(max_examples=1000, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 SLOW = settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])

@@ -17,13 +17,14 @@ import pytest
 
 pytest.importorskip("zenoh")
 
+from arcf.loadtools.driver import Clip, Fleet, Pacing
+from arcf.loadtools.procs import ServiceProcess
+from arcf.schemas import ErrorMessage, Frame, KeySpace, decode, encode
+from arcf.service.client import ServiceError, TrackingClient
+from arcf.service.scrape import by_label, fetch
+
 from arcf.data import data_root
 from arcf.eval import load_dataset
-from loadtools.driver import Clip, Fleet, Pacing
-from loadtools.procs import ServiceProcess
-from schemas import ErrorMessage, Frame, KeySpace, decode, encode
-from service.client import ServiceError, TrackingClient
-from service.scrape import by_label, fetch
 
 pytestmark = [pytest.mark.integration,
               pytest.mark.skipif(not (data_root() / "uav123_10fps").is_dir(),
@@ -241,7 +242,7 @@ def test_sessions_of_a_vanished_station_end_and_free_their_places(strict, clip) 
     # a station starts as many sessions as the instance allows, then is SIGKILLed
     script = (
         "import sys, time\n"
-        "from service.client import TrackingClient\n"
+        "from arcf.service.client import TrackingClient\n"
         f"c = TrackingClient(connect=[{strict.endpoint!r}])\n"
         "for k in range(4):\n"
         f"    c.start(f'flood-{{k}}', {list(clip.box)!r}, preset='bacf')\n"
@@ -317,7 +318,7 @@ def test_a_restarted_station_adopts_the_sessions_it_left_behind(strict, clip) ->
 
 
 def test_a_station_token_never_seen_has_the_grace_to_appear(strict, clip) -> None:
-    from schemas import Ack, StartRequest
+    from arcf.schemas import Ack, StartRequest
 
     with TrackingClient(connect=[strict.endpoint]) as client:
         watch, frames = Watcher(client, "ghost"), Frames(client, clip, "ghost")

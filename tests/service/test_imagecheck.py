@@ -8,9 +8,8 @@ from types import SimpleNamespace
 import cv2
 import numpy as np
 import pytest
-
-from service.decoding import decode_image
-from service.imagecheck import image_size
+from arcf.service.decoding import decode_image
+from arcf.service.imagecheck import image_size
 
 
 def frame(payload: bytes, encoding: str) -> SimpleNamespace:

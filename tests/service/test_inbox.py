@@ -6,8 +6,8 @@ from __future__ import annotations
 import threading
 from types import SimpleNamespace
 
-from schemas import Frame, encode
-from service.worker import _Inbox
+from arcf.schemas import Frame, encode
+from arcf.service.worker import _Inbox
 
 KEY = "arcf/v1/streams/cam/frames"
 VIDEO_KEY = "video/cam/stream"

@@ -4,8 +4,7 @@ single frame can take over."""
 from __future__ import annotations
 
 import pytest
-
-from service.intake import Numbering, TokenBucket
+from arcf.service.intake import Numbering, TokenBucket
 
 
 def test_the_rate_limit_allows_a_second_of_burst_then_the_rate() -> None:

@@ -16,10 +16,11 @@ import pytest
 
 pytest.importorskip("zenoh")
 
+from arcf.loadtools.procs import ServiceProcess
+from arcf.schemas import Result
+from arcf.service.client import ServiceError, TrackingClient
+
 from arcf.presets import PRESETS
-from loadtools.procs import ServiceProcess
-from schemas import Result
-from service.client import ServiceError, TrackingClient
 
 pytestmark = pytest.mark.integration
 

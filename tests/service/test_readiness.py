@@ -8,9 +8,9 @@ import pytest
 
 pytest.importorskip("zenoh")
 
-from loadtools.procs import ServiceProcess
-from service.client import TrackingClient
-from service.health import check
+from arcf.loadtools.procs import ServiceProcess
+from arcf.service.client import TrackingClient
+from arcf.service.health import check
 
 pytestmark = pytest.mark.integration
 

@@ -16,12 +16,13 @@ import pytest
 
 pytest.importorskip("zenoh")
 
+from arcf.loadtools.driver import Clip, failover_fleet
+from arcf.loadtools.procs import RouterProcess, ServiceProcess, start_instances
+from arcf.service.client import TrackingClient
+from arcf.service.cluster import owner
+
 from arcf.data import data_root
 from arcf.eval import load_dataset
-from loadtools.driver import Clip, failover_fleet
-from loadtools.procs import RouterProcess, ServiceProcess, start_instances
-from service.client import TrackingClient
-from service.cluster import owner
 
 pytestmark = [pytest.mark.integration,
               pytest.mark.skipif(not (data_root() / "uav123_10fps").is_dir(),

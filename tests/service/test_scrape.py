@@ -8,9 +8,8 @@ import threading
 from collections.abc import Iterator
 
 import pytest
-
-from service.health import check
-from service.scrape import scrape, series, totals
+from arcf.service.health import check
+from arcf.service.scrape import scrape, series, totals
 
 EXPOSITION = """\
 # HELP arcf_errors_total Errors by code.
@@ -94,7 +93,7 @@ def test_health_check_reports_an_unreachable_endpoint() -> None:
 
 
 def test_one_metric_by_one_label() -> None:
-    from service.scrape import by_label
+    from arcf.service.scrape import by_label
 
     text = ('# TYPE arcf_errors_total counter\n'
             'arcf_errors_total{kind="rate_limited",worker="0"} 3.0\n'

@@ -19,14 +19,15 @@ pytest.importorskip("zenoh")
 import itertools
 from collections.abc import Sequence
 
+from arcf.loadtools.driver import Clip, Fleet, Pacing
+from arcf.loadtools.procs import ServiceProcess as _Service
+from arcf.schemas import KeySpace
+from arcf.service.client import ServiceError, TrackingClient
+from arcf.service.decoding import decode_compressed
+
 import arcf
 from arcf.data import data_root
 from arcf.eval import load_dataset
-from loadtools.driver import Clip, Fleet, Pacing
-from loadtools.procs import ServiceProcess as _Service
-from schemas import KeySpace
-from service.client import ServiceError, TrackingClient
-from service.decoding import decode_compressed
 
 pytestmark = [pytest.mark.integration,
               pytest.mark.skipif(not (data_root() / "uav123_10fps").is_dir(),
@@ -163,8 +164,7 @@ def test_control_errors_are_clear(service) -> None:
             client.start("s", (10, 10, 0, 20), preset="arcf-h")
         # ... and the service refuses it too when a client sends it anyway
         import msgpack
-
-        from schemas import ErrorMessage, decode
+        from arcf.schemas import ErrorMessage, decode
 
         for box, code in (([10, 10, 0, 20], "invalid_box"), ([1, 2, float("nan"), 4],
                                                                "invalid_box")):
@@ -442,7 +442,7 @@ def test_limits_stale_frames_and_bombs_are_refused_counted_and_harmless(frames, 
         # each refusal counted under its code: the refused start, two stale frames, the bomb,
         # then the flood's excess, each one of the frames without a result (the others were
         # dropped for the newest, and counted)
-        from service.scrape import by_label, fetch
+        from arcf.service.scrape import by_label, fetch
 
         kinds = by_label(fetch(svc.metrics_url), "arcf_errors_total", "kind")
         assert kinds["limit_exceeded"] == 1 and kinds["stale_frame"] == 2
@@ -453,7 +453,7 @@ def test_limits_stale_frames_and_bombs_are_refused_counted_and_harmless(frames, 
 
 
 def decode_error_code(sample) -> str:
-    from schemas import ErrorMessage, decode
+    from arcf.schemas import ErrorMessage, decode
 
     return decode(sample.payload.to_bytes(), expected=ErrorMessage).code.value
 

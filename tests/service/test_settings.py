@@ -7,10 +7,9 @@ import dataclasses
 from pathlib import Path
 
 import pytest
-
-from service.app import build_parser
-from service.health import main as health_main
-from service.settings import ServiceSettings, add_arguments, from_arguments
+from arcf.service.app import build_parser
+from arcf.service.health import main as health_main
+from arcf.service.settings import ServiceSettings, add_arguments, from_arguments
 
 
 def parse(argv: list[str], env: dict[str, str] | None = None) -> ServiceSettings:
@@ -98,7 +97,7 @@ def test_zenoh_flags_follow_the_zenoh_python_examples(tmp_path: Path) -> None:
                "-l", "tcp/127.0.0.1:7448", "-c", str(config)])
     assert (s.mode, s.connect, s.listen, s.zenoh_config) == (
         "client", ("tcp/10.0.0.2:7447", "tcp/10.0.0.3:7447"), ("tcp/127.0.0.1:7448",), config)
-    from service.router import main as router_main
+    from arcf.service.router import main as router_main
 
     with pytest.raises(SystemExit) as info:  # parsed, then refused: a mode is not a router's
         router_main(["-m", "peer"])

@@ -22,11 +22,12 @@ import pytest
 
 pytest.importorskip("zenoh")
 
+from arcf.loadtools.driver import Clip
+from arcf.loadtools.procs import ServiceProcess, free_port
+from arcf.service.client import TrackingClient
+
 from arcf.data import data_root
 from arcf.eval import load_dataset
-from loadtools.driver import Clip
-from loadtools.procs import ServiceProcess, free_port
-from service.client import TrackingClient
 
 pytestmark = [pytest.mark.integration,
               pytest.mark.skipif(not (data_root() / "uav123_10fps").is_dir(),

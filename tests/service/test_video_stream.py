@@ -14,13 +14,14 @@ import pytest
 
 pytest.importorskip("zenoh")
 
+from arcf.loadtools.procs import ServiceProcess
+from arcf.loadtools.video import decode_video, encode_video
+from arcf.schemas import ErrorMessage, KeySpace, decode
+from arcf.service.client import TrackingClient
+from arcf.service.decoding import decode_compressed
+from arcf.service.foxglove import compressed_video
+
 import arcf
-from loadtools.procs import ServiceProcess
-from loadtools.video import decode_video, encode_video
-from schemas import ErrorMessage, KeySpace, decode
-from service.client import TrackingClient
-from service.decoding import decode_compressed
-from service.foxglove import compressed_video
 
 pytestmark = pytest.mark.integration
 GOP = 10
