@@ -88,7 +88,7 @@ def check_preset(client: TrackingClient, preset: str, overrides: Mapping[str, An
             raise ValueError(f"override {name}={value!r}: a {p.kind} is needed")
         if p.choices is not None and value not in p.choices:
             raise ValueError(f"override {name}={value!r}: one of {p.choices}")
-        if p.kind in ("int", "float") and not (
+        if p.kind in ("int", "float") and isinstance(value, int | float) and not (
                 (p.minimum is None or value >= p.minimum)
                 and (p.maximum is None or value <= p.maximum)):
             raise ValueError(f"override {name}={value!r}: within [{p.minimum}, {p.maximum}]")

@@ -47,6 +47,7 @@ from typing import Any
 
 import cv2
 import numpy as np
+
 from arcf.schemas import Result
 from arcf.service.client import TrackingClient
 from arcf.service.decoding import decode_compressed
@@ -57,7 +58,7 @@ from ._command import add_service_arguments, prepare, service_client
 from .record import PALETTE
 from .tap import DEFAULT_VIDEO_KEY, StreamTap, TapFrame
 
-log = logging.getLogger("arcf.adapters.liveview")
+log = logging.getLogger(__name__)
 _STREAM = re.compile(r"^/api/streams/([A-Za-z0-9_.-]{1,64})/(frame\.jpg|results)$")
 _STATIC = {"/": ("view.html", "text/html; charset=utf-8"),
            "/view.js": ("view.js", "text/javascript; charset=utf-8"),
@@ -360,7 +361,7 @@ class LiveView:
 
     @property
     def url(self) -> str:
-        host = self.server.server_address[0]
+        host = str(self.server.server_address[0])
         return f"http://{'127.0.0.1' if host in ('0.0.0.0', '') else host}:{self.port}/"
 
     # ------------------------------------------------------------------ watching
@@ -503,9 +504,10 @@ class LiveView:
         sent = 0
         while not watch._stop.is_set():
             with watch.changed:
-                watch.changed.wait_for(
-                    lambda sent=sent: watch.result_count != sent or watch._stop.is_set(),
-                    timeout=KEEPALIVE_S)
+                def news(sent: int = sent) -> bool:
+                    return watch.result_count != sent or watch._stop.is_set()
+
+                watch.changed.wait_for(news, timeout=KEEPALIVE_S)
                 fresh = [(n, e) for n, e in watch.results if n > sent]
             if not fresh:
                 req.wfile.write(b": keep-alive\n\n")  # finds a viewer that left

@@ -63,10 +63,11 @@ from typing import Any
 
 os.environ.setdefault("MAVLINK20", "1")
 
-from arcf.schemas import ErrorCode, Frame, Result, ResultStatus, TrackState
-from arcf.service.client import ServiceError, TrackingClient
-from arcf.service.imagecheck import image_size
 from pymavlink import mavutil
+
+from arcf.schemas import ErrorCode, Frame, Result, ResultStatus, TrackState
+from arcf.service.client import MessageStream, ServiceError, TrackingClient
+from arcf.service.imagecheck import image_size
 
 from ._command import (
     add_override_arguments,
@@ -77,7 +78,7 @@ from ._command import (
     service_client,
 )
 
-log = logging.getLogger("arcf.mavlink")
+log = logging.getLogger(__name__)
 mav = mavutil.mavlink
 
 #: MAV_COMP_ID_CAMERA: the first of the six camera component ids (100-105)
@@ -294,7 +295,7 @@ class MavlinkCameras:
         self._text_id = 0
         self._last_station: float | None = None
         self.link_up = False
-        self._watches = []  # last: their callbacks may run at once
+        self._watches: list[MessageStream[Any]] = []  # last: their callbacks may run at once
         for cam in self.cameras:
             self._watches.append(client.frames(cam.config.stream_id,
                                                callback=self._frame_seen(cam)))

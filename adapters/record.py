@@ -38,17 +38,18 @@ from typing import Any, BinaryIO
 
 import cv2
 import numpy as np
+from mcap.writer import CompressionType, Writer
+
 from arcf.schemas import Result
 from arcf.schemas.export import message_schema
 from arcf.service import foxglove
 from arcf.service.client import TrackingClient
 from arcf.service.video import CODECS, KEYFRAME_TYPES, nal_units
-from mcap.writer import CompressionType, Writer
 
 from ._command import add_service_arguments, prepare, service_client
 from .tap import DEFAULT_VIDEO_KEY, StreamTap, TapFrame
 
-log = logging.getLogger("arcf.adapters.record")
+log = logging.getLogger(__name__)
 
 #: session colours (RGBA, 0-1), in order of appearance; the live view uses the same ones
 PALETTE = ((0.0, 1.0, 0.0, 1.0), (1.0, 0.0, 1.0, 1.0), (0.0, 1.0, 1.0, 1.0),
@@ -61,7 +62,7 @@ def is_keyframe(unit: bytes, encoding: str) -> bool:
     return any(kind in KEYFRAME_TYPES[codec] for kind, _ in nal_units(unit, codec))
 
 
-def annotations(result: Result, colour: tuple[float, float, float, float]) -> Any:
+def result_annotations(result: Result, colour: tuple[float, float, float, float]) -> Any:
     """A result's box and label as Foxglove ``ImageAnnotations`` (the wire's 1-based
     pixel boxes moved to Foxglove's 0-based image coordinates)."""
     fx = foxglove
@@ -198,7 +199,7 @@ class Recorder:
                 result.session_id, PALETTE[len(self._colours) % len(PALETTE)])
             topic = f"/arcf/{self.stream_id}/sessions/{result.session_id}/annotations"
             self._write(self._ros2_channel(topic, foxglove.IMAGE_ANNOTATIONS),
-                        foxglove.serialize(annotations(result, colour),
+                        foxglove.serialize(result_annotations(result, colour),
                                            foxglove.IMAGE_ANNOTATIONS), result.capture_ts_ns)
 
     def close(self) -> None:

@@ -51,9 +51,10 @@ from typing import Any
 
 import numpy as np
 import zenoh
+from zenoh.ext import Int64, z_serialize
+
 from arcf.schemas import Result, ResultStatus, TrackState
 from arcf.service.client import ServiceError, TrackingClient
-from zenoh.ext import Int64, z_serialize
 
 from . import ros2_types as rt
 from ._command import (
@@ -65,7 +66,7 @@ from ._command import (
     service_client,
 )
 
-log = logging.getLogger("arcf.ros2")
+log = logging.getLogger(__name__)
 
 #: rmw_zenoh's QoS string for RELIABLE, VOLATILE, KEEP_LAST 10 (rclcpp/rclpy's default):
 #: only the values differing from rmw_zenoh's own defaults are written

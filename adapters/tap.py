@@ -20,7 +20,7 @@ from arcf.schemas import Frame, Result
 from arcf.service.client import TrackingClient
 from arcf.service.foxglove import parse_compressed_video
 
-log = logging.getLogger("arcf.adapters.tap")
+log = logging.getLogger(__name__)
 
 #: the service's default ``video_key``
 DEFAULT_VIDEO_KEY = "video/{stream}/stream"

@@ -4,14 +4,14 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numba
 from llvmlite import ir
 from numba import types
 from numba.extending import intrinsic
 
-log = logging.getLogger("arcf")
+log = logging.getLogger(__name__)
 
 _OPTIONS: dict[str, Any] = {"nogil": True, "boundscheck": False, "error_model": "numpy"}
 
@@ -33,7 +33,7 @@ def kernel(fn: Callable[..., Any]) -> Any:
 
 
 @intrinsic
-def fma32(typingctx: Any, a: Any, b: Any, c: Any) -> Any:
+def _fma32(typingctx: Any, a: Any, b: Any, c: Any) -> Any:
     """``a * b + c`` in float32 with a single rounding (LLVM's ``fma``), inside kernels.
 
     Why: NumPy multiplies complex64 arrays as ``re = fma(ar, br, -(ai bi))``, ``im = fma(ar,
@@ -49,3 +49,11 @@ def fma32(typingctx: Any, a: Any, b: Any, c: Any) -> Any:
         return builder.call(fn, args)
 
     return sig, codegen
+
+
+if TYPE_CHECKING:
+    def fma32(a: float, b: float, c: float) -> float:
+        """What kernels call: Numba supplies the typing context of the intrinsic."""
+        ...
+else:
+    fma32 = _fma32

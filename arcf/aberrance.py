@@ -55,7 +55,7 @@ def paper_target(m_prev: np.ndarray, peak_prev: tuple[int, int]) -> np.ndarray:
 def release_target(m_prev_shifted: np.ndarray) -> np.ndarray:
     """The release's aberrance "spectrum": T · M_prev[ψ], the spatial map used as if a DFT.
 
-    Three facts of the release, each needed for its boxes (reference notes, details 3 and 4):
+    Three facts of the release, each needed for its boxes (docs/release.md, details 3 and 4):
     the map is the spatial previous response, not its DFT (the domain error); it is kept in its
     fftshifted layout (peak near the grid's centre, shifted onto the current peak), not moved to
     the origin; and the release's g-step divides the label term by T = H·W but not the map

@@ -117,9 +117,11 @@ def solve_filter(
                 np.float32(1) / np.float32(t * mu), np.float32(1) / np.float32(mu),
                 np.float32(1.0 / (t * mu)), np.float32(1.0 / mu), np.float32(mu), g_f, weighted,
             )
+            assert weighted is not None  # allocated when fused
             spectrum = weighted
         else:
             # g-step: closed form per frequency (Sherman–Morrison)
+            assert xc is not None  # conjugated above when not fused
             b = s_xx + t * mu / scale
             s_lx = np.einsum("dhw,dhw->hw", xc, l_f)
             s_hx = np.einsum("dhw,dhw->hw", xc, h_f)

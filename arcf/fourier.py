@@ -130,7 +130,7 @@ def spatial_response(spectrum: np.ndarray, shape: tuple[int, int], hermitian: bo
     symmetric (the release's formulation). MATLAB ignores the redundant half: for a single 2-D map
     it keeps the first half along the column axis, for a stack of maps (ARCF-H's scales, 3-D) it
     keeps the first half along the row axis. Reproducing that choice is what makes the release's
-    boxes reproducible (see the reference notes).
+    boxes reproducible (docs/release.md).
     """
     if hermitian:
         return sfft.irfft2(spectrum, s=shape)

@@ -1,10 +1,10 @@
 """Typed, immutable parameter sets of the three trackers of the paper.
 
 Every value says where it comes from: "paper" (Huang et al., ICCV 2019, Section 6.1 / Table 1),
-"release" (the authors' public MATLAB code, as recorded in ``docs/arcf-reference.md`` of the shared
-folder) or "BACF" / "DSST" when the release inherits it unchanged from those trackers. Where the
-release departs from the paper, the preset follows the release (that is what produced the
-published boxes) and says so.
+"release" (the authors' public MATLAB code; the details that decide its boxes are in
+``docs/release.md``) or "BACF" / "DSST" when the release inherits it unchanged from those
+trackers. Where the release departs from the paper, the preset follows the release (that is
+what produced the published boxes) and says so.
 
 Overrides are applied with :func:`make_params`, which rejects unknown names so that a typo in an
 experiment fails loudly instead of silently running the default.
@@ -98,14 +98,16 @@ class TrackerParams:
     #: fHOG arithmetic: "release" reproduces the toolbox's SSE approximations (magnitude from an
     #: approximate reciprocal square root, orientation from a 20,000-entry acos table), which
     #: move orientation bins near their boundaries; "exact" bins by exact angle comparisons.
-    #: An approximation rather than a choice of the authors, hence an option (reference notes,
+    #: An approximation rather than a choice of the authors, hence an option (docs/release.md,
     #: detail 2).
     fhog_arithmetic: FhogArithmetic = "release"
     #: A CPU's SSE tables (the output of ``tools/sse_approx_dump.c``): the release arithmetic
     #: then replays that CPU's ``RSQRTPS`` / ``RCPPS`` bit for bit instead of modelling the AMD
     #: EPYC that traced the release (None). Their last bits decide orientation bins near
-    #: boundaries, and so whether ARCF-H follows a given run of the release (docs/benchmarks.md
-    #: §2). A path on the host: a library user's setting, refused in service requests.
+    #: boundaries, and so whether ARCF-H follows a given run of the release. A path on the
+    #: host, or a table shipped with the package by name (``"amd-epyc"``, the tracing CPU's,
+    #: which ``RELEASE_COMPATIBLE`` replays); a library user's setting, refused in service
+    #: requests.
     fhog_sse_table: str | None = None
     #: How windows are cut and shrunk to the working resolution. "release": the release's
     #: sampler, one area resize per window, bit for bit (``mexResize``). "pyramid": windows
@@ -138,7 +140,7 @@ class TrackerParams:
     training_sample: TrainingSampleMode = "extract"
     #: Scale each feature sample to unit mean energy per element, as ECO/STRCF's
     #: ``extract_features`` does (``normalize_power = 2``, ``normalize_size``, ``normalize_dim``).
-    #: Off in every preset, as the reference notes describe the release; measured as an
+    #: Off in every preset, as the release does (docs/release.md); measured as an
     #: experiment on ARCF-HC (docs/benchmarks.md), it did not bring the boxes closer overall.
     normalize_features: bool = False
     #: Cell size of all features (release: 4).
@@ -205,7 +207,8 @@ class TrackerParams:
                 problems.append(f"{name} must be an integer, got {getattr(self, name)!r}")
         if self.fhog_sse_table is not None:
             if not isinstance(self.fhog_sse_table, str) or not self.fhog_sse_table:
-                problems.append("fhog_sse_table must be a file path or None")
+                problems.append("fhog_sse_table must be a file path, a shipped table's name "
+                                "('amd-epyc') or None")
             elif self.fhog_arithmetic != "release":
                 problems.append("fhog_sse_table needs fhog_arithmetic='release'")
         for name in ("round_translation", "whole_pixel_boxes", "normalize_features"):
@@ -283,11 +286,13 @@ BACF = dataclasses.replace(ARCF_H, name="bacf", gamma=0.0)
 PRESETS: dict[str, TrackerParams] = {p.name: p for p in (ARCF_H, ARCF_HC, BACF)}
 
 #: The overrides that turn a preset into the authors' release, the configuration whose boxes
-#: are compared with the release's own runs (docs/benchmarks.md §2):
-#: ``create_tracker("arcf-h", **RELEASE_COMPATIBLE)``.
+#: are compared with the release's own runs (docs/benchmarks.md, "Fidelity"):
+#: ``create_tracker("arcf-h", **RELEASE_COMPATIBLE)``. fHOG replays the SSE instructions of
+#: the AMD EPYC that traced the release (a table shipped with the package), so the boxes are
+#: the same on any CPU.
 RELEASE_COMPATIBLE: Mapping[str, Any] = MappingProxyType(
     {"aberrance": "release", "sampling": "release", "fhog_arithmetic": "release",
-     "spectra": "release", "training_sample": "extract",
+     "fhog_sse_table": "amd-epyc", "spectra": "release", "training_sample": "extract",
      # the release learns every frame and never searches: re-acquisition off
      "state.reacquire": False}
 )
@@ -430,7 +435,7 @@ def _fold_dotted(overrides: Mapping[str, Any]) -> dict[str, Any]:
                 raise InvalidParameterError(
                     f"{group} fields {clash} given twice (as {group}.<name> and in {group})")
             out[group] = {**whole, **fields}
-        elif isinstance(whole, NESTED_GROUPS[group]):
+        elif isinstance(whole, NESTED_GROUPS[group]) and dataclasses.is_dataclass(whole):
             out[group] = {**{f.name: getattr(whole, f.name)
                              for f in dataclasses.fields(whole)}, **fields}
         else:

@@ -672,7 +672,7 @@ class ARCFTracker:
 
     # Frames arrive as OpenCV's BGR and stay so; the windows cut from them are read as RGB,
     # as the release reads images (imread), which decides fHOG's channel ties and the Color
-    # Names index (reference notes, detail 1): fHOG reads BGR windows in RGB order itself, the
+    # Names index (docs/release.md, detail 1): fHOG reads BGR windows in RGB order itself, the
     # pixel features convert their windows (``FeatureExtractor(..., bgr=True)``). Converting
     # windows rather than the frame saved 0.4 ms per 1280x720 frame; not converting them at
     # all another 0.1 ms per ARCF-H frame.

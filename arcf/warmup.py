@@ -11,7 +11,7 @@ import numpy as np
 
 __all__ = ["warm_up"]
 
-log = logging.getLogger("arcf")
+log = logging.getLogger(__name__)
 
 #: glibc's ``mallopt`` parameters (``malloc.h``).
 _M_TRIM_THRESHOLD = -1
@@ -59,11 +59,13 @@ def warm_up() -> float:
 
 
 def _track_a_little() -> None:
-    """Two frames of every preset on a synthetic scene, a pyramid-sized window included.
+    """Two frames of every preset on a synthetic scene, colour and grey, with a large target
+    (a pyramid-sized window) and a small one.
 
     Why: Numba compiles (or loads) one specialisation per argument layout, and the trackers
     pass views the calls above do not (a transposed fHOG output, strided windows); loading
     those on the first real frame added ~5 ms to it (measured with ``benchmarks/speed.py``).
+    The first tracker of a process also builds FFT plans and feature buffers.
     """
     from .errors import ColorNamesNotFoundError
     from .presets import PRESETS
@@ -74,12 +76,13 @@ def _track_a_little() -> None:
     shifted = np.roll(frame, (3, 2), axis=(0, 1))
     for name in PRESETS:
         for image, later in ((frame, shifted), (frame[..., 0], shifted[..., 0])):
-            tracker = create_tracker(name)
-            try:
-                tracker.init(image, (140.0, 140.0, 200.0, 200.0))
-            except ColorNamesNotFoundError:
-                continue  # ARCF-HC on colour needs the table; grey frames still warm it up
-            tracker.update(later)
+            for box in ((140.0, 140.0, 200.0, 200.0), (200.0, 220.0, 40.0, 30.0)):
+                tracker = create_tracker(name)
+                try:
+                    tracker.init(image, box)
+                except ColorNamesNotFoundError:
+                    break  # ARCF-HC on colour needs the table; grey frames still warm it up
+                tracker.update(later)
 
 
 def keep_freed_memory() -> bool:

@@ -25,14 +25,13 @@ from pathlib import Path
 from statistics import median
 from typing import Any
 
+from arcf.data import data_root
+from arcf.eval import load_dataset
 from arcf.loadtools.compose import INSTANCES, ComposeStack, stack_env
 from arcf.loadtools.driver import Clip, failover_fleet
 from arcf.loadtools.procs import free_port
 from arcf.service.client import TrackingClient
 from arcf.service.cluster import owner
-
-from arcf.data import data_root
-from arcf.eval import load_dataset
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -43,6 +43,8 @@ from collections.abc import Callable
 from typing import Any
 
 import numpy as np
+
+from arcf.eval import load_dataset
 from arcf.loadtools.driver import Clip, Fleet, Pacing
 from arcf.loadtools.procs import ServiceProcess
 from arcf.loadtools.system import machine
@@ -51,8 +53,6 @@ from arcf.schemas import Frame, KeySpace, encode
 from arcf.service.client import ServiceError, TrackingClient
 from arcf.service.foxglove import compressed_video
 from arcf.service.scrape import by_label, delta, fetch, scrape, series
-
-from arcf.eval import load_dataset
 
 KEYS = KeySpace()
 

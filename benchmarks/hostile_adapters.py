@@ -51,13 +51,13 @@ from typing import Any
 import numpy as np
 
 os.environ.setdefault("MAVLINK20", "1")
+from pymavlink import mavutil
+
+from arcf.eval import load_dataset
 from arcf.loadtools.groundstation import GroundStation
 from arcf.loadtools.procs import ServiceProcess, free_port
 from arcf.loadtools.system import machine
 from arcf.service.client import TrackingClient
-from pymavlink import mavutil
-
-from arcf.eval import load_dataset
 
 mav = mavutil.mavlink
 

@@ -23,12 +23,11 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from arcf.eval import load_dataset
 from arcf.loadtools.procs import ServiceProcess, free_port
 from arcf.loadtools.video import encode_video
 from arcf.service.client import TrackingClient
 from arcf.service.decoding import decode_compressed
-
-from arcf.eval import load_dataset
 
 TICK = os.sysconf("SC_CLK_TCK")
 

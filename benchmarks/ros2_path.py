@@ -25,13 +25,13 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np
+
 from arcf.adapters import ros2_types as rt
 from arcf.adapters.ros2 import Ros2Bridge, attachment, topic_key
+from arcf.eval import load_dataset
 from arcf.loadtools.procs import ServiceProcess
 from arcf.service.client import TrackingClient
 from arcf.service.transport import open_session
-
-from arcf.eval import load_dataset
 
 
 def _lockstep(n: int, send: Callable[[int], None], answered: Callable[[], int]) -> list[float]:

@@ -27,14 +27,13 @@ import time
 from pathlib import Path
 from typing import Any
 
+from arcf.eval import load_dataset
 from arcf.loadtools.driver import Clip, Fleet, failover_fleet
 from arcf.loadtools.loadtest import run_load
 from arcf.loadtools.procs import RouterProcess, ServiceProcess, start_instances
 from arcf.loadtools.system import process_tree
 from arcf.service.client import TrackingClient
 from arcf.service.cluster import owner
-
-from arcf.eval import load_dataset
 
 
 class Instances:

@@ -17,14 +17,14 @@ import time
 
 import cv2
 import numpy as np
+
+import arcf
+from arcf.eval import load_dataset
 from arcf.loadtools.driver import Clip, Fleet, Pacing
 from arcf.loadtools.procs import ServiceProcess
 from arcf.loadtools.system import cpu_model
 from arcf.service.client import TrackingClient
 from arcf.service.decoding import decode_compressed
-
-import arcf
-from arcf.eval import load_dataset
 
 
 def library(preset: str, clip: Clip) -> np.ndarray:

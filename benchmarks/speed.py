@@ -239,8 +239,9 @@ def main() -> int:
 
 def print_stages(stage_runs: dict[str, list[tuple[int, dict]]]) -> None:
     """Per-tracker table: ms per frame of each stage over all frames, share, floor."""
-    from arcf.loadtools.system import cpu_model
     from stages import STAGES
+
+    from arcf.loadtools.system import cpu_model
 
     print(f"Machine: {os.cpu_count()} CPUs (`nproc`), {cpu_model()}; single-threaded; stage "
           "times are exclusive (a stage called inside another is charged to itself); floors "

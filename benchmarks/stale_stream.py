@@ -42,13 +42,13 @@ os.environ.setdefault("MAVLINK20", "1")
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np
+from pymavlink import mavutil
+
 from arcf.adapters.mavlink import CameraConfig, MavlinkCameras
+from arcf.eval import load_dataset
 from arcf.loadtools.procs import ServiceProcess, free_port
 from arcf.loadtools.system import machine
 from arcf.service.client import TrackingClient
-from pymavlink import mavutil
-
-from arcf.eval import load_dataset
 
 mav = mavutil.mavlink
 W, H = 1280, 720

@@ -20,10 +20,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import av
 import cv2
 import numpy as np
-from arcf.service.decoding import decode_compressed
-from arcf.service.video import StreamDecoder
 
 from arcf.data import data_root
+from arcf.service.decoding import decode_compressed
+from arcf.service.video import StreamDecoder
 
 
 def rss_mb() -> float:

@@ -16,9 +16,9 @@ import os
 import sys
 
 import numpy as np
-from arcf.service.client import TrackingClient
 
 from arcf.eval import load_dataset
+from arcf.service.client import TrackingClient
 
 from .driver import Clip, Fleet, Pacing, SimulatedStream
 from .ledger import Received, percentiles

@@ -28,7 +28,7 @@ class Clip:
     """The frames one simulated drone replays, cycled, and the box its sessions start from."""
 
     name: str
-    box: tuple[float, ...]
+    box: tuple[float, float, float, float]
     frames: tuple[bytes, ...]
     #: ground truth of the sequence's frames, in publication order (frame i: row i mod len);
     #: None for a forth-and-back clip, which is not scored
@@ -44,9 +44,10 @@ class Clip:
         moves continuously and a session never has to be re-initialised at a wrap."""
         paths = sequence.frames[:limit] if limit else sequence.frames
         data = [p.read_bytes() for p in paths]
+        x, y, w, h = (float(v) for v in sequence.init_box)
         if palindrome:
-            return cls(sequence.name, tuple(sequence.init_box), tuple(data + data[-2:0:-1]))
-        return cls(sequence.name, tuple(sequence.init_box), tuple(data),
+            return cls(sequence.name, (x, y, w, h), tuple(data + data[-2:0:-1]))
+        return cls(sequence.name, (x, y, w, h), tuple(data),
                    np.asarray(sequence.groundtruth[: len(data)], dtype=float))
 
     def __len__(self) -> int:
@@ -255,8 +256,10 @@ class Fleet:
                     self.client.reinit(sid, st.clip.box, frame_seq=i)
             if pacing.in_flight and i >= pacing.in_flight:  # closed loop: frame i - in_flight
                 wanted, count = i - pacing.in_flight, len(st.sessions)
-                rec.wait(lambda w=wanted, c=count: rec.answered(w) >= c
-                         or st.stop.is_set(), pacing.wait_s)
+                def answered(w: int = wanted, c: int = count) -> bool:
+                    return rec.answered(w) >= c or st.stop.is_set()
+
+                rec.wait(answered, pacing.wait_s)
             if st.stop.is_set():
                 return
             self.client.publish_frame(st.name, data=st.clip.frames[i % n_frames],
@@ -282,8 +285,10 @@ class Fleet:
             rec = st.record
             if st.sent:
                 last, count = rec.sent[-1][0], len(st.sessions)
-                if not rec.wait(lambda r=rec, s=last, c=count: r.answered(s) >= c,
-                                deadline - time.monotonic()):
+                def drained(r: StreamRecord = rec, s: int = last, c: int = count) -> bool:
+                    return r.answered(s) >= c
+
+                if not rec.wait(drained, deadline - time.monotonic()):
                     return False
         return True
 

@@ -245,7 +245,8 @@ class Ledger:
         with self.cond:
             sent = sum(1 for rec in chosen for _, t in rec.sent if t0 <= t <= t1)
             got = [r for rec in chosen for r in rec.received if t0 <= r.t <= t1]
-        sessions = max(np.mean([len(rec.sessions) for rec in chosen]), 1) if chosen else 1
+        sessions = (max(float(np.mean([len(rec.sessions) for rec in chosen])), 1.0)
+                    if chosen else 1.0)
         dropped = sum(r.dropped for r in got)
         span = max(t1 - t0, 1e-9)
         return {"seconds": span, "offered_fps": sent / span,

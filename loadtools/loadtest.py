@@ -29,11 +29,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from arcf.eval import load_dataset, score_sequence
 from arcf.service.decoding import decode_compressed
 from arcf.service.scrape import delta, scrape
 from arcf.service.settings import ZENOH_SHORT_FLAGS
-
-from arcf.eval import load_dataset, score_sequence
 
 from .driver import Clip, Fleet, Pacing
 from .ledger import Received, meets_capacity, percentiles
@@ -106,7 +106,8 @@ def _offline(preset: str, clip: Clip, n: int) -> tuple[float, float]:
     return sc.precision20, sc.auc
 
 
-def _library_loop(preset: str, items: list[tuple[tuple[float, ...], list[bytes]]],
+def _library_loop(preset: str,
+                  items: list[tuple[tuple[float, float, float, float], list[bytes]]],
                   seconds: float, start: Any, out: Any) -> None:
     """One library process: decode + track the sequences in turn for ``seconds`` (spawned)."""
     import cv2
@@ -132,7 +133,8 @@ def _library_loop(preset: str, items: list[tuple[tuple[float, ...], list[bytes]]
     out.put(frames / (time.perf_counter() - t0))
 
 
-def library_throughput(preset: str, items: list[tuple[tuple[float, ...], list[bytes]]],
+def library_throughput(preset: str,
+                       items: list[tuple[tuple[float, float, float, float], list[bytes]]],
                        processes: int = 1, seconds: float = 10.0) -> float:
     """Frames per second (decode + track, the work a worker does per frame) of ``processes``
     library processes running side by side on the same frames, with no service in the way.

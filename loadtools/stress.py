@@ -27,6 +27,7 @@ import time
 from typing import Any
 
 import numpy as np
+
 from arcf.service.scrape import by_label, fetch, scrape
 from arcf.service.scrape import delta as metrics_delta
 

@@ -6,9 +6,12 @@ in the tests and benchmarks)."""
 from __future__ import annotations
 
 from collections.abc import Iterable
+from fractions import Fraction
+from typing import cast
 
 import av
 import numpy as np
+
 from arcf.service.video import CODECS
 
 #: codec name on the wire (frame ``encoding``, CompressedVideo ``format``) -> FFmpeg's encoder
@@ -26,9 +29,9 @@ def encode_video(images: Iterable[np.ndarray], codec: str = "h264", fps: int = 3
     units: list[bytes] = []
     for image in images:
         if enc is None:
-            enc = av.CodecContext.create(encoder_name, "w")
+            enc = cast(av.VideoCodecContext, av.CodecContext.create(encoder_name, "w"))
             enc.height, enc.width = image.shape[:2]
-            enc.pix_fmt, enc.framerate = "yuv420p", fps
+            enc.pix_fmt, enc.framerate = "yuv420p", Fraction(fps)
             if codec == "h264":
                 enc.options = {"g": str(gop), "bf": "0", "preset": "veryfast",
                                "tune": "zerolatency", "sc_threshold": "0", "crf": str(crf)}
@@ -45,5 +48,5 @@ def encode_video(images: Iterable[np.ndarray], codec: str = "h264", fps: int = 3
 
 def decode_video(units: Iterable[bytes], codec: str = "h264") -> list[np.ndarray]:
     """Every picture of a stream of access units, by one plain FFmpeg decoder, as BGR."""
-    dec = av.CodecContext.create(CODECS[codec], "r")
+    dec = cast(av.VideoCodecContext, av.CodecContext.create(CODECS[codec], "r"))
     return [f.to_ndarray(format="bgr24") for u in units for f in dec.decode(av.Packet(u))]

@@ -292,7 +292,8 @@ def _describe_errors(msg_type: str, exc: ValidationError
                      ) -> tuple[str, list[dict[str, Any]], ErrorCode]:
     """The message, the errors and their code: the field's own code when every error is in
     one kind of field (the box, the overrides), else ``invalid_request``."""
-    errors = exc.errors(include_url=False, include_input=False, include_context=False)
+    errors: list[dict[str, Any]] = [
+        dict(e) for e in exc.errors(include_url=False, include_input=False, include_context=False)]
     parts = []
     codes = {_field_code(err) for err in errors}
     code = codes.pop() if len(codes) == 1 else ErrorCode.INVALID_REQUEST

@@ -25,7 +25,7 @@ from arcf import __version__
 from . import multiproc
 from .settings import ServiceSettings, add_arguments, from_arguments
 
-log = logging.getLogger("arcf.service")
+log = logging.getLogger(__name__)
 
 
 class Service:
@@ -42,8 +42,9 @@ class Service:
         s = self.settings
         self.metrics_dir = multiproc.prepare()  # before prometheus_client is imported
         import zenoh
-        from arcf.schemas import ErrorCode, ErrorMessage, KeySpace, encode
         from prometheus_client import start_http_server
+
+        from arcf.schemas import ErrorCode, ErrorMessage, KeySpace, encode
 
         from . import metrics
         from .cluster import Cluster
@@ -182,6 +183,7 @@ class Service:
         a dead instance; their streams are told on their error keys, and the first result
         after says ``resumed``."""
         import zenoh
+
         from arcf.schemas import ErrorCode, ErrorMessage, encode
 
         from . import metrics

@@ -21,6 +21,7 @@ from typing import Any, Generic, TypeVar
 import cv2
 import numpy as np
 import zenoh
+
 from arcf.schemas import (
     Ack,
     ErrorMessage,
@@ -175,6 +176,7 @@ class TrackingClient:
             if not ok:
                 raise ValueError("image could not be encoded")
             data = buf.tobytes()
+        assert data is not None  # given, or encoded just above
         if len(data) > self.max_payload:
             raise ValueError(f"a frame of {len(data)} bytes is above max_payload "
                              f"({self.max_payload}): the service would refuse it, and a "

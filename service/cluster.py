@@ -29,7 +29,7 @@ from typing import Any
 
 from arcf.schemas import MAX_BOX_COORD, KeySpace, Result, SchemaError, SessionSpec, decode, encode
 
-log = logging.getLogger("arcf.service.cluster")
+log = logging.getLogger(__name__)
 
 
 def weight(key: str, member: str | int) -> int:
@@ -144,7 +144,8 @@ class Cluster:
         with self.lock:
             return list(self.specs.values())
 
-    def resume_point(self, session_id: str) -> tuple[tuple[float, ...], int | None, bool]:
+    def resume_point(self, session_id: str
+                     ) -> tuple[tuple[float, float, float, float], int | None, bool]:
         """Where a session taken over starts again: (box, frame_seq, resumed). From its last
         published box on the next frame; from its start box if it never published one."""
         with self.lock:
@@ -153,7 +154,7 @@ class Cluster:
         if last is not None:
             return last[1], last[0] + 1, True
         assert spec is not None
-        return tuple(spec.box), spec.frame_seq, False
+        return spec.box, spec.frame_seq, False
 
     # ------------------------------------------------------------------ registry writes
     def publish(self, spec: SessionSpec) -> None:
@@ -204,7 +205,7 @@ class Cluster:
             if spec.last_seq is not None and spec.last_box is not None:
                 known = self.last.get(spec.session_id)
                 if known is None or known[0] < spec.last_seq:
-                    self.last[spec.session_id] = (spec.last_seq, tuple(spec.last_box))
+                    self.last[spec.session_id] = (spec.last_seq, spec.last_box)
 
     def _on_registry_query(self, query: Any) -> None:
         """A joining instance asks what runs: every known session, with its last box."""
@@ -227,7 +228,7 @@ class Cluster:
                 return
             known = self.last.get(r.session_id)
             if known is None or known[0] < r.frame_seq:
-                self.last[r.session_id] = (r.frame_seq, tuple(r.box))
+                self.last[r.session_id] = (r.frame_seq, r.box)
 
     def _notify_loop(self) -> None:
         while True:

@@ -22,12 +22,29 @@ import uuid
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from typing import Any
-
-from arcf.schemas import ErrorCode
+from typing import TYPE_CHECKING, Any, cast
 
 from arcf import ARCFError, make_params
 from arcf.presets import HOST_PARAMETERS, PRESETS, TUNABLE
+from arcf.schemas import (
+    Ack,
+    ErrorCode,
+    ErrorMessage,
+    ParameterInfo,
+    PresetInfo,
+    Presets,
+    PresetsRequest,
+    ReinitRequest,
+    SchemaError,
+    SessionInfo,
+    SessionSpec,
+    StartRequest,
+    Status,
+    StatusRequest,
+    StopRequest,
+    decode,
+    encode,
+)
 
 from .cluster import Cluster, owner, weight
 from .commands import (
@@ -43,7 +60,14 @@ from .commands import (
 
 __all__ = ["ControlPlane", "SessionRecord", "owner", "place"]
 
-log = logging.getLogger("arcf.service.control")
+if TYPE_CHECKING:
+    import zenoh
+
+log = logging.getLogger(__name__)
+
+#: What a station asks on the control key, and what it is answered.
+Request = StartRequest | ReinitRequest | StopRequest | StatusRequest | PresetsRequest
+Reply = Ack | Status | Presets
 #: Streams whose id starts so are the start-up's own readiness check (``arcf.service.app``): their
 #: session lives for one start and stop on this instance and is never in the cluster's
 #: registry (a registry entry could outlive it in another instance's copy, and be "taken
@@ -146,7 +170,7 @@ class ControlPlane:
             self.queues[worker].put(cmd)
             return
         cid = uuid.uuid4().hex
-        event, slot = threading.Event(), []
+        event, slot = threading.Event(), list[Any]()
         with self.lock:
             self._waiting[cid] = (event, slot)
         self.queues[worker].put(dataclasses.replace(cmd, reply_id=cid))
@@ -277,7 +301,7 @@ class ControlPlane:
                 try:
                     w = self._admit(sid, spec.stream_id, spec.preset, spec.client_id)
                     self._forward(w, StartSession(
-                        session_id=sid, stream_id=spec.stream_id, box=tuple(box),
+                        session_id=sid, stream_id=spec.stream_id, box=box,
                         preset=spec.preset, overrides=dict(spec.overrides), frame_seq=frame_seq,
                         status="resumed" if resumed else "initialized"))
                 except _Refused as exc:
@@ -350,7 +374,7 @@ class ControlPlane:
         return w
 
     # ------------------------------------------------------------------ queries
-    def handle_query(self, query: Any) -> None:
+    def handle_query(self, query: zenoh.Query) -> None:
         """Zenoh queryable callback: exactly one reply per query, never an exception."""
         payload = query.payload.to_bytes() if query.payload is not None else b""
         reply = self.handle(payload)
@@ -359,23 +383,11 @@ class ControlPlane:
 
     def handle(self, payload: bytes) -> bytes | None:
         """The encoded reply to a request, or None when another instance owns the answer."""
-        from arcf.schemas import (
-            ErrorMessage,
-            PresetsRequest,
-            ReinitRequest,
-            SchemaError,
-            StartRequest,
-            StatusRequest,
-            StopRequest,
-            decode,
-            encode,
-        )
-
         from . import metrics
 
         try:
-            request = decode(payload, expected=(StartRequest, ReinitRequest, StopRequest,
-                                                StatusRequest, PresetsRequest))
+            request = cast(Request, decode(payload, expected=(
+                StartRequest, ReinitRequest, StopRequest, StatusRequest, PresetsRequest)))
         except SchemaError as exc:
             if not self._mine("payload:" + hashlib.blake2b(payload, digest_size=8).hexdigest()):
                 return None
@@ -402,9 +414,7 @@ class ControlPlane:
         metrics.CONTROL.labels(type=kind, outcome="ok").inc()
         return encode(reply)
 
-    def _dispatch(self, request: Any) -> Any:
-        from arcf.schemas import PresetsRequest, ReinitRequest, StartRequest, StopRequest
-
+    def _dispatch(self, request: Request) -> Reply:
         if isinstance(request, StartRequest):
             return self._start(request)
         if isinstance(request, ReinitRequest):
@@ -415,14 +425,12 @@ class ControlPlane:
             return self._presets(request)
         return self._status(request)
 
-    def _presets(self, req: Any) -> Any:
+    def _presets(self, req: PresetsRequest) -> Presets:
         """The presets and what each override accepts (``arcf.presets.TUNABLE``): what a
         request may set, as :meth:`_start` enforces it, nested ones (``scale_filter.*``,
         ``state.*``) included. Library-only parameters (lists, host paths) are left out: a
         wire override is a scalar."""
         from functools import reduce
-
-        from arcf.schemas import ParameterInfo, PresetInfo, Presets
 
         kinds = {bool: "bool", int: "int", float: "float", str: "str"}
         wire = {k: t for k, t in TUNABLE.items()
@@ -437,7 +445,7 @@ class ControlPlane:
                                       choices=list(t.choices) if t.choices else None)
                         for k, t in wire.items()])
 
-    def _responder_key(self, request: Any) -> str:
+    def _responder_key(self, request: Request) -> str:
         """What decides which instance answers: the stream, when the request names one or its
         session is known; else the request itself."""
         stream = getattr(request, "stream_id", None)
@@ -452,9 +460,7 @@ class ControlPlane:
                 stream = rec.stream_id if rec is not None else None
         return stream if stream is not None else "request:" + request.request_id
 
-    def _start(self, req: Any) -> Any:
-        from arcf.schemas import Ack, SessionSpec
-
+    def _start(self, req: StartRequest) -> Ack:
         if req.preset.lower().replace("_", "-") not in PRESETS:
             raise _Refused(ErrorCode.UNKNOWN_PRESET, f"unknown preset {req.preset!r}; choose "
                            f"one of {', '.join(sorted(PRESETS))}")
@@ -472,7 +478,7 @@ class ControlPlane:
         w = self._admit(sid, req.stream_id, req.preset, req.client_id)
         try:
             self._forward(w, StartSession(
-                session_id=sid, stream_id=req.stream_id, box=tuple(req.box), preset=req.preset,
+                session_id=sid, stream_id=req.stream_id, box=req.box, preset=req.preset,
                 overrides=dict(req.overrides), frame_seq=req.frame_seq))
         except _Refused:
             with self.lock:
@@ -496,11 +502,9 @@ class ControlPlane:
             raise _Refused(ErrorCode.UNKNOWN_SESSION, f"no session {session_id!r}")
         return rec
 
-    def _reinit(self, req: Any) -> Any:
-        from arcf.schemas import Ack
-
+    def _reinit(self, req: ReinitRequest) -> Ack:
         rec = self._record(req.session_id)
-        self._forward(rec.worker, ReinitSession(rec.session_id, tuple(req.box), req.frame_seq))
+        self._forward(rec.worker, ReinitSession(rec.session_id, req.box, req.frame_seq))
         update: dict[str, Any] = {"box": req.box, "frame_seq": req.frame_seq}
         if req.client_id is not None and req.client_id != rec.client_id:
             self._adopt(rec, req.client_id)
@@ -512,9 +516,7 @@ class ControlPlane:
         return Ack(request_id=req.request_id, session_id=rec.session_id,
                    stream_id=rec.stream_id, message="re-initialisation queued")
 
-    def _stop(self, req: Any) -> Any:
-        from arcf.schemas import Ack
-
+    def _stop(self, req: StopRequest) -> Ack:
         rec = self._record(req.session_id)
         with self.lock:
             self.sessions.pop(rec.session_id, None)
@@ -526,9 +528,7 @@ class ControlPlane:
         return Ack(request_id=req.request_id, session_id=rec.session_id,
                    stream_id=rec.stream_id, message="session stopped")
 
-    def _status(self, req: Any) -> Any:
-        from arcf.schemas import SessionInfo, Status
-
+    def _status(self, req: StatusRequest) -> Status:
         with self.lock:
             records = [(r.session_id, r.stream_id, r.preset, r.client_id)
                        for r in self.sessions.values()]
@@ -544,7 +544,7 @@ class ControlPlane:
             for sid in self.sessions:  # started here, not reported by its worker yet
                 stats.setdefault(sid, SessionStat(0, None, None, "waiting"))
 
-        def info(sid: str, stream: str, preset: str, client: str | None) -> Any:
+        def info(sid: str, stream: str, preset: str, client: str | None) -> SessionInfo:
             st = stats.get(sid)  # known for this instance's sessions
             return SessionInfo(
                 session_id=sid, stream_id=stream, preset=preset, client_id=client,

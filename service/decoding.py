@@ -13,6 +13,7 @@ from typing import Any
 import cv2
 import numpy as np
 import simplejpeg
+
 from arcf.schemas import ErrorCode
 
 from .imagecheck import image_size

@@ -1,12 +1,20 @@
-"""What a stream's frames must pass before a worker spends anything on them: the per-stream rate
-limit and the frame numbering. Both are pure logic here (no Zenoh, no clock of their own), so
-that every rule is tested on its own; the worker applies them.
+"""What a stream's frames must pass before a worker spends anything on them: the inbox that
+Zenoh's callback fills (key check, size, the per-stream rate limit, the bounded queue), and the
+rules it and the worker apply (:class:`TokenBucket`, the frame :class:`Numbering`). The rules
+are pure logic (no Zenoh, no clock of their own), so that each is tested on its own.
 """
 
 from __future__ import annotations
 
+import re
+import threading
+import time
+from collections import deque
 from dataclasses import dataclass, field
 from enum import Enum
+from typing import Any
+
+from arcf.schemas import ErrorCode
 
 
 class TokenBucket:
@@ -99,3 +107,113 @@ class Numbering:
             self.last, self.last_time, self.runs = seq, now, []
             return Verdict.RESTART, 0
         return (Verdict.STALE if seq <= self.last else Verdict.JUMP), 0
+
+
+#: a frame message's encoding, as msgpack spells a video one (a 4-byte str), looked for in the
+#: first ``_HEAD`` bytes of the message, where the schema's field order puts it before payload
+_VIDEO_MARK = re.compile(rb"\xa8encoding\xa4h26[45]")
+_HEAD = 256
+
+
+class Inbox:
+    """The newest frames of one stream: filled by Zenoh's callback thread, drained by the loop.
+
+    Intake happens here, before anything is queued: a sample put on any key but the stream's
+    own (a wildcard put reaches every stream's subscriber) is refused and counted
+    (``invalid_key``), and the stream's rate limit refuses the excess of a flood, counted
+    (``rate_limited``) and reported by the loop, instead of the queue silently trimming it.
+    ``deque.append``/``popleft`` are atomic, and trimming from the left drops the oldest
+    entries, which is the drop-oldest policy a live video stream wants: an image stream keeps
+    its newest ``frame_queue`` frames; a video stream (h264 / h265 units, or anything on its
+    CompressedVideo key) ``video_queue`` units, since each one must reach the decoder.
+
+    Whatever the count, the queue also holds at most ``max_bytes`` (the larger of 32 MiB and
+    two frames of ``max_payload``): a station flooding a video stream with huge units cannot
+    claim ``video_queue`` times ``max_payload`` of memory.
+
+    Units on the CompressedVideo key carry no number: they are numbered here, as they arrive
+    (refused ones included), so that a unit lost to the rate limit or the queue shows as a gap
+    to the decoder, which then waits for a keyframe instead of decoding from a broken chain."""
+
+    def __init__(self, key: str, video_key: str | None, image_queue: int, video_queue: int,
+                 rate: float, max_payload: int, wake: threading.Event, metrics: Any) -> None:
+        self.key = key
+        self.video_key = video_key
+        #: bounded by ``limit`` and ``max_bytes``, trimmed on every append (no ``maxlen``: its
+        #: silent drops would escape the byte count)
+        self.frames: deque[tuple[bytes, int, str, int | None]] = deque()
+        self.image_queue, self.video_queue = image_queue, video_queue
+        #: entries kept: ``image_queue`` until the stream turns out to be video
+        self.limit = image_queue
+        self.video_seq = 0
+        #: monotonic time of the last sample queued (never: 0): the stream delivers, so its
+        #: sessions are not stale even while the loop is busy elsewhere (written by Zenoh's
+        #: thread, read by the loop: a float assignment is atomic)
+        self.arrived = 0.0
+        self.max_bytes = max(32 << 20, 2 * (max_payload + 1024))
+        self._bytes = 0
+        self._lock = threading.Lock()  # the byte count is shared with the loop's pops
+        self.bucket = TokenBucket(rate)
+        self.max_payload = max_payload
+        self.wake = wake
+        self.metrics = metrics
+        #: frames dropped from the queue's old end so far (the stream lagged behind)
+        self.trimmed = 0
+        #: frames refused here so far, by code (the loop reports them to the stream)
+        self.refused: dict[ErrorCode, int] = {ErrorCode.RATE_LIMITED: 0,
+                                              ErrorCode.OVERSIZED_PAYLOAD: 0}
+
+    def __call__(self, sample: Any) -> None:
+        """A sample on the stream's frames key (a ``frame`` message)."""
+        if str(sample.key_expr) != self.key:
+            self.metrics.ERRORS.labels(kind=ErrorCode.INVALID_KEY.value).inc()
+            return
+        self._take(sample, "frame", None)
+
+    def video(self, sample: Any) -> None:
+        """A sample on the stream's CompressedVideo key (CDR)."""
+        if str(sample.key_expr) != self.video_key:
+            self.metrics.ERRORS.labels(kind=ErrorCode.INVALID_KEY.value).inc()
+            return
+        self.limit = self.video_queue
+        seq, self.video_seq = self.video_seq, self.video_seq + 1
+        self._take(sample, "compressed_video", seq)
+
+    def _take(self, sample: Any, source: str, seq: int | None) -> None:
+        self.metrics.FRAMES_RECEIVED.inc()
+        # the size first, without copying: an oversized message never takes a place in the
+        # queue, nor memory (a frame message is its payload plus a few dozen bytes)
+        if len(sample.payload) > self.max_payload + 1024:
+            self._refuse(ErrorCode.OVERSIZED_PAYLOAD)
+        elif not self.bucket.take(time.monotonic()):
+            self._refuse(ErrorCode.RATE_LIMITED)
+        else:
+            data = sample.payload.to_bytes()
+            if source == "frame" and self.limit != self.video_queue and _VIDEO_MARK.search(
+                    data, 0, _HEAD):
+                # a video unit: the whole group of pictures must be kept from the first one
+                # (the loop confirms it when it decodes the message, whatever its field order)
+                self.limit = self.video_queue
+            with self._lock:
+                self.frames.append((data, time.time_ns(), source, seq))
+                self.arrived = time.monotonic()
+                self._bytes += len(data)
+                while len(self.frames) > 1 and (len(self.frames) > self.limit
+                                                or self._bytes > self.max_bytes):
+                    # the oldest goes: the gap shows in the numbers, and is counted
+                    self._bytes -= len(self.frames.popleft()[0])
+                    self.trimmed += 1
+            self.wake.set()
+
+    def _refuse(self, code: ErrorCode) -> None:
+        self.metrics.ERRORS.labels(kind=code.value).inc()
+        self.refused[code] += 1
+        self.wake.set()
+
+    def pop(self) -> tuple[bytes, int, str, int | None] | None:
+        with self._lock:
+            if not self.frames:
+                return None
+            item = self.frames.popleft()
+            self._bytes -= len(item[0])
+            return item

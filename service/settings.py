@@ -7,9 +7,10 @@ import argparse
 import os
 import tomllib
 import uuid
+from collections.abc import Iterable
 from dataclasses import MISSING, dataclass, field, fields, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 ENV_PREFIX = "ARCF_SERVICE_"
 
@@ -195,7 +196,7 @@ class ServiceSettings:
     def from_env(cls, env: dict[str, str] | None = None, **overrides: object) -> ServiceSettings:
         """Settings from ``ARCF_SERVICE_<FIELD>`` variables (lists comma-separated), then
         ``overrides`` (None: not given)."""
-        return cls.from_sources(env=env, **overrides)
+        return cls.from_sources(None, env, **overrides)
 
     @classmethod
     def from_sources(cls, config: str | os.PathLike[str] | None = None,
@@ -238,7 +239,7 @@ def _kind(name: str) -> type:
     f = _FIELDS[name]
     if f.metadata.get("kind") is not None:
         return f.metadata["kind"]
-    default = f.default if f.default is not MISSING else f.default_factory()  # type: ignore[misc]
+    default = f.default if f.default_factory is MISSING else f.default_factory()
     return type(default)
 
 
@@ -249,7 +250,7 @@ def _convert(name: str, value: object) -> object:
         if kind is tuple:
             if isinstance(value, str):
                 return tuple(v.strip() for v in value.split(",") if v.strip())
-            return tuple(str(v) for v in value)  # type: ignore[union-attr]
+            return tuple(str(v) for v in cast(Iterable[object], value))
         if kind is bool:
             if isinstance(value, str):
                 return value.strip().lower() in ("1", "true", "yes", "on")

@@ -34,6 +34,7 @@ import re
 from dataclasses import dataclass
 from enum import Enum
 from functools import cached_property
+from typing import cast
 
 import av
 import av.logging
@@ -94,7 +95,7 @@ def nal_units(data: bytes, codec: str, limit: int = MAX_NAL_UNITS) -> list[tuple
     Raises ``ValueError`` at the ``limit + 1``-th start code: the search (bytes.find, in C) is
     linear in the unit's size and stops there, so a unit packed with start codes costs at
     most ``limit`` steps of Python."""
-    starts = []
+    starts: list[tuple[int, int]] = []
     i = data.find(b"\x00\x00\x01")
     while i >= 0:
         if len(starts) == limit:
@@ -121,7 +122,7 @@ class StreamDecoder:
             raise ValueError(f"codec must be 'h264' or 'hevc', got {codec!r}")
         self.codec = codec
         self.max_pixels = max_pixels
-        self._ctx: av.CodecContext | None = None
+        self._ctx: av.VideoCodecContext | None = None
         self._params: dict[int, bytes] = {}
         self._next_seq: int | None = None
         #: counts by outcome, and resynchronisations by cause
@@ -169,7 +170,7 @@ class StreamDecoder:
             present = {kind for kind, _ in units}
             missing = [u for k, u in sorted(self._params.items()) if k not in present]
             data = b"".join(missing) + data
-            self._ctx = av.CodecContext.create(self.codec, "r")
+            self._ctx = cast(av.VideoCodecContext, av.CodecContext.create(self.codec, "r"))
             self._ctx.thread_type = "NONE"
             # FFmpeg refuses a larger picture before allocating it: a parameter set declaring
             # a huge size (a decoding bomb) costs nothing

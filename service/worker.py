@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import logging
 import math
-import re
 import threading
 import time
 from collections import deque
@@ -23,6 +22,8 @@ from typing import Any
 
 import cv2
 import numpy as np
+
+from arcf import ARCFError, create_tracker, warm_up
 from arcf.schemas import (
     ErrorCode,
     ErrorMessage,
@@ -33,8 +34,6 @@ from arcf.schemas import (
     decode,
     encode,
 )
-
-from arcf import ARCFError, create_tracker, warm_up
 
 from .commands import (
     Command,
@@ -49,10 +48,10 @@ from .commands import (
 )
 from .decoding import decode_image
 from .foxglove import parse_compressed_video
-from .intake import Numbering, TokenBucket, Verdict
+from .intake import Inbox, Numbering, Verdict
 from .video import CODECS, Decoded, Outcome, StreamDecoder
 
-log = logging.getLogger("arcf.service.worker")
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -95,10 +94,6 @@ class _CommandRefused(Exception):
         self.code = code
 
 
-#: a frame message's encoding, as msgpack spells a video one (a 4-byte str), looked for in the
-#: first ``_HEAD`` bytes of the message, where the schema's field order puts it before payload
-_VIDEO_MARK = re.compile(rb"\xa8encoding\xa4h26[45]")
-_HEAD = 256
 #: The most a video stream's backlog may decode in one turn, seconds: the other streams of the
 #: worker wait at most this (plus one unit) for a stream that fell behind.
 DECODE_TURN_S = 0.05
@@ -112,110 +107,6 @@ OVER_BUDGET_WINDOWS = 2
 #: equals (more streams of the same kind than the worker can serve) none is to blame, and
 #: each keeps its newest frames, dropping the rest (counted), as before.
 UNFAIR = 2.0
-
-
-class _Inbox:
-    """The newest frames of one stream: filled by Zenoh's callback thread, drained by the loop.
-
-    Intake happens here, before anything is queued: a sample put on any key but the stream's
-    own (a wildcard put reaches every stream's subscriber) is refused and counted
-    (``invalid_key``), and the stream's rate limit refuses the excess of a flood, counted
-    (``rate_limited``) and reported by the loop, instead of the queue silently trimming it.
-    ``deque.append``/``popleft`` are atomic, and trimming from the left drops the oldest
-    entries, which is the drop-oldest policy a live video stream wants: an image stream keeps
-    its newest ``frame_queue`` frames; a video stream (h264 / h265 units, or anything on its
-    CompressedVideo key) ``video_queue`` units, since each one must reach the decoder.
-
-    Whatever the count, the queue also holds at most ``max_bytes`` (the larger of 32 MiB and
-    two frames of ``max_payload``): a station flooding a video stream with huge units cannot
-    claim ``video_queue`` times ``max_payload`` of memory.
-
-    Units on the CompressedVideo key carry no number: they are numbered here, as they arrive
-    (refused ones included), so that a unit lost to the rate limit or the queue shows as a gap
-    to the decoder, which then waits for a keyframe instead of decoding from a broken chain."""
-
-    def __init__(self, key: str, video_key: str | None, image_queue: int, video_queue: int,
-                 rate: float, max_payload: int, wake: threading.Event, metrics: Any) -> None:
-        self.key = key
-        self.video_key = video_key
-        #: bounded by ``limit`` and ``max_bytes``, trimmed on every append (no ``maxlen``: its
-        #: silent drops would escape the byte count)
-        self.frames: deque[tuple[bytes, int, str, int | None]] = deque()
-        self.image_queue, self.video_queue = image_queue, video_queue
-        #: entries kept: ``image_queue`` until the stream turns out to be video
-        self.limit = image_queue
-        self.video_seq = 0
-        #: monotonic time of the last sample queued (never: 0): the stream delivers, so its
-        #: sessions are not stale even while the loop is busy elsewhere (written by Zenoh's
-        #: thread, read by the loop: a float assignment is atomic)
-        self.arrived = 0.0
-        self.max_bytes = max(32 << 20, 2 * (max_payload + 1024))
-        self._bytes = 0
-        self._lock = threading.Lock()  # the byte count is shared with the loop's pops
-        self.bucket = TokenBucket(rate)
-        self.max_payload = max_payload
-        self.wake = wake
-        self.metrics = metrics
-        #: frames dropped from the queue's old end so far (the stream lagged behind)
-        self.trimmed = 0
-        #: frames refused here so far, by code (the loop reports them to the stream)
-        self.refused: dict[ErrorCode, int] = {ErrorCode.RATE_LIMITED: 0,
-                                              ErrorCode.OVERSIZED_PAYLOAD: 0}
-
-    def __call__(self, sample: Any) -> None:
-        """A sample on the stream's frames key (a ``frame`` message)."""
-        if str(sample.key_expr) != self.key:
-            self.metrics.ERRORS.labels(kind=ErrorCode.INVALID_KEY.value).inc()
-            return
-        self._take(sample, "frame", None)
-
-    def video(self, sample: Any) -> None:
-        """A sample on the stream's CompressedVideo key (CDR)."""
-        if str(sample.key_expr) != self.video_key:
-            self.metrics.ERRORS.labels(kind=ErrorCode.INVALID_KEY.value).inc()
-            return
-        self.limit = self.video_queue
-        seq, self.video_seq = self.video_seq, self.video_seq + 1
-        self._take(sample, "compressed_video", seq)
-
-    def _take(self, sample: Any, source: str, seq: int | None) -> None:
-        self.metrics.FRAMES_RECEIVED.inc()
-        # the size first, without copying: an oversized message never takes a place in the
-        # queue, nor memory (a frame message is its payload plus a few dozen bytes)
-        if len(sample.payload) > self.max_payload + 1024:
-            self._refuse(ErrorCode.OVERSIZED_PAYLOAD)
-        elif not self.bucket.take(time.monotonic()):
-            self._refuse(ErrorCode.RATE_LIMITED)
-        else:
-            data = sample.payload.to_bytes()
-            if source == "frame" and self.limit != self.video_queue and _VIDEO_MARK.search(
-                    data, 0, _HEAD):
-                # a video unit: the whole group of pictures must be kept from the first one
-                # (the loop confirms it when it decodes the message, whatever its field order)
-                self.limit = self.video_queue
-            with self._lock:
-                self.frames.append((data, time.time_ns(), source, seq))
-                self.arrived = time.monotonic()
-                self._bytes += len(data)
-                while len(self.frames) > 1 and (len(self.frames) > self.limit
-                                                or self._bytes > self.max_bytes):
-                    # the oldest goes: the gap shows in the numbers, and is counted
-                    self._bytes -= len(self.frames.popleft()[0])
-                    self.trimmed += 1
-            self.wake.set()
-
-    def _refuse(self, code: ErrorCode) -> None:
-        self.metrics.ERRORS.labels(kind=code.value).inc()
-        self.refused[code] += 1
-        self.wake.set()
-
-    def pop(self) -> tuple[bytes, int, str, int | None] | None:
-        with self._lock:
-            if not self.frames:
-                return None
-            item = self.frames.popleft()
-            self._bytes -= len(item[0])
-            return item
 
 
 @dataclass
@@ -254,7 +145,7 @@ class _Picture:
 class _Stream:
     stream_id: str
     subscriber: Any
-    inbox: _Inbox
+    inbox: Inbox
     errors: Any
     numbering: Numbering
     sessions: dict[str, _Session] = field(default_factory=dict)
@@ -280,27 +171,6 @@ class _Stream:
     trimmed_before: int = 0
 
 
-def _warm_up() -> None:
-    """Import the tracker library and run each preset once on a synthetic frame.
-
-    Without it the first session on a worker pays for the imports, FFT plan caches and feature
-    buffers (hundreds of ms), and on a machine without Numba's cache for the compiled kernels
-    their compilation (~11 s), which shows up as a latency spike on the first frames.
-    """
-    from arcf import PRESETS
-
-    log.debug("tracker kernels ready in %.2f s", warm_up())
-    rng = np.random.default_rng(0)
-    frame = cv2.GaussianBlur(rng.integers(0, 255, (240, 320, 3), dtype=np.uint8), (0, 0), 3)
-    for name in PRESETS:
-        try:
-            t = create_tracker(name)
-            t.init(frame, (140, 100, 40, 30))
-            t.update(frame)
-        except Exception:  # e.g. no Color Names table here: that preset warms on first use
-            log.debug("warm-up of %s skipped", name, exc_info=True)
-
-
 class Worker:
     def __init__(self, index: int, settings: Any, commands: Any, responses: Any,
                  stop: Any) -> None:
@@ -317,7 +187,8 @@ class Worker:
         self.metrics = metrics
         self.keys = KeySpace(settings.prefix)
         self.zenoh = zenoh
-        _warm_up()  # before the liveliness token: "ready" means no first-frame import stall
+        # before the liveliness token: "ready" means no first-frame import or compile stall
+        log.debug("tracker kernels ready in %.2f s", warm_up())
         self.session = open_session("client", connect=settings.worker_endpoints,
                                     config_file=settings.zenoh_config, lease_ms=settings.lease_ms,
                                     max_message_size=settings.transport_limit)
@@ -334,7 +205,7 @@ class Worker:
         self.busy = metrics.BUSY.labels(worker=str(index))
         self.memory = metrics.MEMORY.labels(process=f"worker-{index}")
         self.wake = threading.Event()
-        self.pending: deque[dict[str, Any]] = deque()
+        self.pending: deque[Command] = deque()
         #: when ``_check_stale`` must look next (monotonic; inf: no session can go stale)
         self.stale_due = math.inf
         #: consecutive one-second windows over ``worker_budget`` with a stream starved by the
@@ -595,7 +466,7 @@ class Worker:
                                       f"session {cmd.session_id!r} has ended")
             else:
                 self._check_frame_seq(self.streams[s.stream_id], cmd.frame_seq)
-                s.pending_box, s.pending_seq = tuple(cmd.box), cmd.frame_seq
+                s.pending_box, s.pending_seq = cmd.box, cmd.frame_seq
                 s.pending_status = "reinitialized"
                 s.last_activity = time.monotonic()
         elif isinstance(cmd, StopSession):
@@ -630,7 +501,7 @@ class Worker:
         if stream is None:
             s = self.settings
             video_key = s.video_key.replace("{stream}", stream_id) if s.video_key else None
-            inbox = _Inbox(self.keys.frames(stream_id), video_key, s.frame_queue, s.video_queue,
+            inbox = Inbox(self.keys.frames(stream_id), video_key, s.frame_queue, s.video_queue,
                            s.max_stream_fps, s.max_payload, self.wake, self.metrics)
             sub = self.session.declare_subscriber(self.keys.frames(stream_id), inbox)
             errors = self.session.declare_publisher(
@@ -655,7 +526,7 @@ class Worker:
                 self._drop_stream(stream)
             raise
         s = _Session(cmd.session_id, stream_id, cmd.preset, tracker, pub,
-                     pending_box=tuple(cmd.box), pending_seq=cmd.frame_seq,
+                     pending_box=cmd.box, pending_seq=cmd.frame_seq,
                      pending_status=cmd.status)
         if s.pending_status == "resumed" and s.pending_seq:
             # frames between the last published result and the takeover count as dropped
@@ -813,7 +684,7 @@ class Worker:
     def _ingest_compressed_video(self, stream: _Stream, payload: bytes, received_ns: int,
                                  seq: int) -> _Picture | None:
         """A CDR foxglove.CompressedVideo from the stream's ``video_key``: numbered on arrival
-        (``_Inbox.video``), stamped with its own ``timestamp``."""
+        (``Inbox.video``), stamped with its own ``timestamp``."""
         try:
             unit = parse_compressed_video(payload)
         except ValueError as exc:

@@ -164,7 +164,7 @@ def cmd_report(args: argparse.Namespace) -> int:
     return 0
 
 
-def add_parser(sub: argparse._SubParsersAction, parse_override: Any) -> None:  # type: ignore[type-arg]
+def add_parser(sub: argparse._SubParsersAction[Any], parse_override: Any) -> None:
     ev = sub.add_parser("eval", help="run and score trackers on UAV123@10fps, DTB70, UAVDT")
     esub = ev.add_subparsers(dest="eval_command", required=True)
 

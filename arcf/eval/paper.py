@@ -113,11 +113,11 @@ def build_report(
     for ds in DATASETS:
         scores = {tr: rows[TITLES[ds]] for tr, rows in full_rows.items() if TITLES[ds] in rows}
         if scores:
-            p = report.plot_precision(scores, img / f"full_{ds}_precision.png",
-                                      f"Precision plots of OPE on {TITLES[ds]}")
-            s = report.plot_success(scores, img / f"full_{ds}_success.png",
-                                    f"Success plots of OPE on {TITLES[ds]}")
-            lines.append(f"![]({rel_img}/{p.name}) ![]({rel_img}/{s.name})")
+            prec = report.plot_precision(scores, img / f"full_{ds}_precision.png",
+                                         f"Precision plots of OPE on {TITLES[ds]}")
+            succ = report.plot_success(scores, img / f"full_{ds}_success.png",
+                                       f"Success plots of OPE on {TITLES[ds]}")
+            lines.append(f"![]({rel_img}/{prec.name}) ![]({rel_img}/{succ.name})")
     lines.append("")
 
     # 2. ours on the local sequences
@@ -169,13 +169,13 @@ def build_report(
     ours = {spec.name for spec in configs}
     for ds in local:
         scores = {tr: r[TITLES[ds]] for tr, r in rows.items() if TITLES[ds] in r}
-        p = report.plot_precision(scores, img / f"local_{ds}_precision.png",
-                                  f"Precision, {TITLES[ds]} ({len(local[ds])} local sequences)",
-                                  ours=ours)
-        s = report.plot_success(scores, img / f"local_{ds}_success.png",
-                                f"Success, {TITLES[ds]} ({len(local[ds])} local sequences)",
-                                ours=ours)
-        lines.append(f"![]({rel_img}/{p.name}) ![]({rel_img}/{s.name})")
+        prec = report.plot_precision(scores, img / f"local_{ds}_precision.png",
+                                     f"Precision, {TITLES[ds]} ({len(local[ds])} local sequences)",
+                                     ours=ours)
+        succ = report.plot_success(scores, img / f"local_{ds}_success.png",
+                                   f"Success, {TITLES[ds]} ({len(local[ds])} local sequences)",
+                                   ours=ours)
+        lines.append(f"![]({rel_img}/{prec.name}) ![]({rel_img}/{succ.name})")
     lines.append("")
 
     # 3. Table 2
@@ -215,12 +215,12 @@ def build_report(
         for spec in configs:
             if spec.preset in ("arcf-h", "bacf") and not spec.overrides:
                 folder_spec = TrackerSpec(spec.preset, spec.overrides, _folder_label(spec))
-                f = result_dir(out, folder_spec, "uav123_10fps") / f"{seq}_map_diff.txt"
-                series[spec.name] = np.loadtxt(f, ndmin=1)
+                diff = result_dir(out, folder_spec, "uav123_10fps") / f"{seq}_map_diff.txt"
+                series[spec.name] = np.loadtxt(diff, ndmin=1)
         for tr in ("ARCF-H", "BACF"):
-            f = pub_root / "UAV123_10fps" / tr / f"{seq}_map_diff.txt"
-            if f.is_file():
-                series[f"{tr} (authors)"] = np.loadtxt(f, ndmin=1)
+            diff = pub_root / "UAV123_10fps" / tr / f"{seq}_map_diff.txt"
+            if diff.is_file():
+                series[f"{tr} (authors)"] = np.loadtxt(diff, ndmin=1)
         p = report.plot_map_difference(series, img / f"map_difference_{seq}.png",
                                        f"Response-map difference per frame, {seq}")
         lines += ["## 4. Response-map difference per frame", "",

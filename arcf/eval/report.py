@@ -121,7 +121,7 @@ def _save(fig: Figure, path: str | os.PathLike[str], dpi: int) -> Path:
 def _legend(ax: Axes, n: int, inside_loc: str) -> None:
     """Legend inside the axes for a few curves, beside them when many would hide the data."""
     if n <= 8:
-        ax.legend(loc=inside_loc, fontsize="small", framealpha=0.85)
+        ax.legend(loc=inside_loc, fontsize="small", framealpha=0.85)  # type: ignore[call-overload]
     else:
         ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize="small", frameon=False)
 

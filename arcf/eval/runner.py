@@ -209,8 +209,8 @@ def run_experiment(
                 bar.close()
     _write_fps(out, spec, {s.dataset for s in seqs})
     if failures:
-        name, exc = failures[0]
-        raise RuntimeError(f"{len(failures)} sequence(s) failed, first {name}: {exc}") from exc
+        first, cause = failures[0]
+        raise RuntimeError(f"{len(failures)} sequence(s) failed, first {first}: {cause}") from cause
     return infos
 
 

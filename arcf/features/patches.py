@@ -39,7 +39,7 @@ def resize_auto(patch: np.ndarray, out_hw: tuple[int, int]) -> np.ndarray:
     number of *columns* exceeds the patch's number of *rows*, area otherwise. On the square
     windows of the translation filters both rules agree; on the DSST scale filter's non-square
     samples (e.g. a 48x22 window resized to 32x15) they do not, and which one is used decides
-    whether ARCF-HC's boxes match the release's on truck4_1 after frame 34 (reference notes,
+    whether ARCF-HC's boxes match the release's on truck4_1 after frame 34 (docs/release.md,
     detail 8).
     """
     h, w = patch.shape[:2]
@@ -154,7 +154,7 @@ def bacf_patch(
 
     Both trackers of the release sample this way (ARCF-HC too, although it is built on ECO's
     code: it does not use ECO's ``sample_patch`` with its integer pre-decimation, whose windows
-    differ by up to 156 grey levels on boat1; reference notes, detail 6).
+    differ by up to 156 grey levels on boat1; docs/release.md, detail 6).
 
     1-based rows ``floor(pos) + (1..s) - floor(s/2)``, so the array index of the first row is
     ``floor(pos) - floor(s/2)``.

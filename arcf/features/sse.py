@@ -24,11 +24,22 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import lru_cache
+from importlib import resources
 from pathlib import Path
+from typing import Protocol
 
 import numpy as np
 
-__all__ = ["SSETables", "load_sse_tables"]
+__all__ = ["SHIPPED_TABLES", "SSEInstructions", "SSETables", "load_sse_tables", "sse_table_path"]
+
+
+class SSEInstructions(Protocol):
+    """What the release arithmetic needs of a CPU: its ``RSQRTPS`` and ``RCPPS``, elementwise
+    on float32 arrays (``out`` has ``x``'s shape and may be ``x``)."""
+
+    def rsqrt_into(self, x: np.ndarray, out: np.ndarray) -> np.ndarray: ...
+
+    def rcp_into(self, x: np.ndarray, out: np.ndarray) -> np.ndarray: ...
 
 RSQRT_ENTRIES = 1 << 13
 RCP_ENTRIES = 1 << 12
@@ -139,6 +150,21 @@ def _load_cached(path: str) -> SSETables:
     return SSETables.load(path)
 
 
-def load_sse_tables(path: str | Path) -> SSETables:
-    """:meth:`SSETables.load`, cached per resolved path (trackers of one process share it)."""
-    return _load_cached(str(Path(path).resolve()))
+#: Tables shipped with the package (``arcf/features/tables``, provenance in its README), by the
+#: name a preset may give instead of a path.
+SHIPPED_TABLES = {"amd-epyc": "sse_amd_epyc.txt"}
+
+
+def sse_table_path(name_or_path: str | Path) -> Path:
+    """The file of a shipped table's name (``"amd-epyc"``: the CPU that traced the release),
+    else the path itself."""
+    shipped = SHIPPED_TABLES.get(str(name_or_path))
+    if shipped is not None:
+        return Path(str(resources.files("arcf.features").joinpath("tables", shipped)))
+    return Path(name_or_path)
+
+
+def load_sse_tables(name_or_path: str | Path) -> SSETables:
+    """:meth:`SSETables.load` of a shipped table's name or a file, cached per resolved path
+    (trackers of one process share it, and with it fHOG's tables of every uint8 pixel)."""
+    return _load_cached(str(sse_table_path(name_or_path).resolve()))

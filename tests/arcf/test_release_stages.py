@@ -374,24 +374,17 @@ TRAJECTORIES = (
     # fallback (scale 2), the release's at a sub-cell peak of scale 3 (seen 4 times in 200
     # perturbations of 1e-6). Both truck4 sequences are kept to the end.
     Trajectory("ARCF-H_truck4_2", "arcf-h", "uav123_10fps", "truck4_2", 47, True),
-    # Frame 45: the release's Newton climbs from the integer peak (0, -1) of scale 3 to a
-    # sub-cell peak (-0.19, -0.53) worth 0.00879; ours leaves that basin and falls back to the
-    # integer peak, so scale 1 (0.00873) wins. The maps agree to 4e-5; running Newton in the
-    # release's single precision does not change it, but variants of the RSQRTPS model do (in
-    # a diagnostic fit of fHOG's magnitudes to the traces, BMX3 followed the release to the end).
-    Trajectory("ARCF-H_BMX3", "arcf-h", "dtb70", "BMX3", 45, False),
-    # Frame 40: the case the reference notes name.
+    # Frame 58: Newton's 50 single-precision iterations wander (docs/release.md, detail 10).
+    Trajectory("ARCF-H_BMX3", "arcf-h", "dtb70", "BMX3", 58, True),
+    # Frame 40: docs/release.md, detail 10.
     Trajectory("BACF_wakeboard10", "bacf", "uav123_10fps", "wakeboard10", 40, True),
-    # Frame 13 (ARCF-H boat1, scale 2 against our 3), frame 44 (ARCF-HC boat1) and frame 167
-    # (ARCF-HC truck4_1, scale filter): maps that agreed to 1e-5 differ by 0.3-1.2 % at one
-    # detection, because a few pixels vote into another orientation bin: the bin of a pixel
-    # near a boundary is decided by the last bits of the tracing CPU's (an AMD EPYC's) RSQRTPS,
-    # which we can only model. Random, equally plausible variants of the model move boat1's
-    # frame 13 anywhere from 4 to 17 (benchmarks/arithmetic_sensitivity.py, docs §2); the
-    # EPYC's own tables (tools/sse_approx_dump.c, preset fhog_sse_table) would settle it.
-    Trajectory("ARCF-H_boat1", "arcf-h", "uav123_10fps", "boat1", 13, False),
-    Trajectory("ARCF-HC_boat1", "arcf-hc", "uav123_10fps", "boat1", 44, False),
-    Trajectory("ARCF-HC_truck4_1", "arcf-hc", "uav123_10fps", "truck4_1", 167, False),
+    # To the end: with the tracing CPU's own RSQRTPS / RCPPS (RELEASE_COMPATIBLE replays its
+    # table), every pixel votes into the release's orientation bin. With the 13-bit model of
+    # them, a few pixels near a bin boundary did not, and these runs left the release at
+    # frames 13, 44 and 167.
+    Trajectory("ARCF-H_boat1", "arcf-h", "uav123_10fps", "boat1", None, False),
+    Trajectory("ARCF-HC_boat1", "arcf-hc", "uav123_10fps", "boat1", None, False),
+    Trajectory("ARCF-HC_truck4_1", "arcf-hc", "uav123_10fps", "truck4_1", None, False),
 )
 
 

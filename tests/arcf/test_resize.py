@@ -53,7 +53,8 @@ def test_views_integer_ratios_and_enlargements_equal_opencv() -> None:
 
 
 def test_resize_auto_keeps_the_release_rule() -> None:
-    """Area when the new width does not exceed the old height, linear otherwise (detail 8)."""
+    """Area when the new width does not exceed the old height, linear otherwise
+    (docs/release.md, detail 8)."""
     rng = np.random.default_rng(11)
     patch = rng.integers(0, 256, (22, 48, 3), dtype=np.uint8)  # DSST-like: wide, short
     linear = cv2.resize(patch, (32, 15), interpolation=cv2.INTER_LINEAR)

@@ -14,13 +14,14 @@ import ctypes
 import platform
 import shutil
 import subprocess
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 import arcf
-import arcf.features.fhog as fhog_module
 from arcf.errors import UnknownPresetError
 from arcf.features.fhog import fhog
 from arcf.features.sse import RCP_ENTRIES, RSQRT_ENTRIES, SSETables, load_sse_tables
@@ -110,9 +111,15 @@ def test_replay_equals_the_instructions_bit_for_bit(dumped: Path, native) -> Non
     assert tables.cpu != "unknown"
 
 
-def test_fhog_with_tables_equals_fhog_on_the_instructions(
-    dumped: Path, native, monkeypatch: pytest.MonkeyPatch
-) -> None:
+@dataclass(frozen=True)
+class Native:
+    """This CPU's own instructions, called through ctypes, as fHOG's SSE instructions."""
+
+    rsqrt_into: Callable[[np.ndarray, np.ndarray], np.ndarray]
+    rcp_into: Callable[[np.ndarray, np.ndarray], np.ndarray]
+
+
+def test_fhog_with_tables_equals_fhog_on_the_instructions(dumped: Path, native) -> None:
     """The release arithmetic with the replayed tables is exactly the release arithmetic run on
     this CPU's instructions (including the doubled gradient and the capped reciprocal), and it
     differs from the model of the AMD EPYC: the tables matter."""
@@ -121,13 +128,13 @@ def test_fhog_with_tables_equals_fhog_on_the_instructions(
     patches = np.clip(smooth - smooth.min() + rng.normal(0, 4, smooth.shape), 0, 255)
     patches = patches.astype(np.uint8)
     tables = load_sse_tables(dumped)
-    replayed = fhog(patches, 4, arithmetic=tables)
+    replayed = fhog(patches, 4, arithmetic=tables)  # uint8: tables of every pixel, fused
     model = fhog(patches, 4, arithmetic="release")
-    monkeypatch.setattr(fhog_module, "_FUSED_RELEASE", False)  # the steps that call them
-    monkeypatch.setattr(fhog_module, "_release_rsqrt", native[0])
-    monkeypatch.setattr(fhog_module, "_release_rcp", native[1])
-    on_the_cpu = fhog(patches, 4, arithmetic="release")
+    # float32 pixels take the separate steps, which call the instructions themselves
+    on_the_cpu = fhog(patches.astype(np.float32), 4, arithmetic=Native(*native))
     np.testing.assert_array_equal(replayed, on_the_cpu)
+    np.testing.assert_array_equal(fhog(patches.astype(np.float32), 4, arithmetic=tables),
+                                  replayed)
     assert np.abs(replayed - model).max() > 1e-6
 
 
@@ -186,3 +193,28 @@ def test_tracker_reports_an_unreadable_table(tmp_path: Path) -> None:
     (tmp_path / "junk.txt").write_text("hello\n")
     with pytest.raises(UnknownPresetError, match="fhog_sse_table"):
         arcf.create_tracker("arcf-h", fhog_sse_table=str(tmp_path / "junk.txt"))
+
+
+def test_the_tracing_cpus_table_ships_with_the_package() -> None:
+    """RELEASE_COMPATIBLE replays the AMD EPYC's instructions on any CPU: the table is package
+    data, loaded by name, and (where the shared data is present) the very file measured there."""
+    from importlib import resources
+
+    import arcf
+    from arcf.data import data_root
+    from arcf.features.sse import SHIPPED_TABLES, sse_table_path
+
+    path = sse_table_path("amd-epyc")
+    assert path.is_file() and path.name == SHIPPED_TABLES["amd-epyc"]
+    assert path.parent.name == "tables" and (path.parent / "README.md").is_file()
+    assert resources.files("arcf.features").joinpath("tables", path.name).is_file()
+    tables = load_sse_tables("amd-epyc")
+    assert tables is load_sse_tables(path) and tables.cpu == "AMD EPYC"
+    shared = data_root() / "reference_release" / "sse_amd_epyc.txt"
+    if shared.is_file():
+        assert shared.read_bytes() == path.read_bytes()
+    assert arcf.RELEASE_COMPATIBLE["fhog_sse_table"] == "amd-epyc"
+    tracker = arcf.create_tracker("arcf-h", **arcf.RELEASE_COMPATIBLE)
+    assert tracker._fhog_arithmetic is tables
+    with pytest.raises(UnknownPresetError):
+        arcf.create_tracker("arcf-h", fhog_sse_table="no-such-table")

@@ -7,7 +7,7 @@ import threading
 from types import SimpleNamespace
 
 from arcf.schemas import Frame, encode
-from arcf.service.worker import _Inbox
+from arcf.service.intake import Inbox
 
 KEY = "arcf/v1/streams/cam/frames"
 VIDEO_KEY = "video/cam/stream"
@@ -29,13 +29,13 @@ class _Payload(bytes):
         return bytes(self)
 
 
-def put(inbox: _Inbox, key: str, data: bytes) -> None:
+def put(inbox: Inbox, key: str, data: bytes) -> None:
     (inbox.video if key == VIDEO_KEY else inbox)(
         SimpleNamespace(key_expr=key, payload=_Payload(data)))
 
 
-def inbox(max_payload: int = 1 << 20) -> _Inbox:
-    return _Inbox(KEY, VIDEO_KEY, 2, 60, 1e9, max_payload, threading.Event(), METRICS)
+def inbox(max_payload: int = 1 << 20) -> Inbox:
+    return Inbox(KEY, VIDEO_KEY, 2, 60, 1e9, max_payload, threading.Event(), METRICS)
 
 
 def frame(seq: int, encoding: str, size: int = 100) -> bytes:

@@ -57,7 +57,7 @@ def test_run_writes_every_file_and_matches_an_in_process_run(tmp_path: Path, seq
         assert set(details[:, 6]) <= {0, 1, 2}
         # a worker process gives exactly the boxes of the library run here (4-decimal files)
         frames = [seq.read_frame(i) for i in range(len(seq))]
-        local = run_sequence(arcf.create_tracker("arcf-h", **arcf.RELEASE_COMPATIBLE), frames,
+        local = run_sequence(arcf.create_tracker(spec.preset, **spec.overrides), frames,
                              seq.init_box)
         np.testing.assert_allclose(boxes, local.boxes, atol=1e-4)
     fps = json.loads((folder / "fps.json").read_text())
