@@ -41,6 +41,8 @@ class SSEInstructions(Protocol):
 
     def rcp_into(self, x: np.ndarray, out: np.ndarray) -> np.ndarray: ...
 
+    def __hash__(self) -> int: ...  # fHOG caches its tables of every pixel per instruction set
+
 RSQRT_ENTRIES = 1 << 13
 RCP_ENTRIES = 1 << 12
 #: Largest relative error a table entry may have against the exact value at its bucket's first

@@ -41,7 +41,7 @@ what the authors' ARCF release computed; see :func:`fhog`.
 from __future__ import annotations
 
 import math
-from typing import Literal, cast
+from typing import Literal
 
 import numpy as np
 
@@ -244,6 +244,6 @@ def _instructions(arithmetic: Arithmetic) -> SSEInstructions | None:
     if isinstance(arithmetic, SSETables | SSEModel) or (
             callable(getattr(arithmetic, "rsqrt_into", None))
             and callable(getattr(arithmetic, "rcp_into", None))):
-        return cast(SSEInstructions, arithmetic)
+        return arithmetic
     raise ValueError(f"fhog: arithmetic must be 'exact', 'release' or SSE instructions (an "
                      f"SSETables), got {arithmetic!r}")

@@ -225,7 +225,7 @@ def release_pixel_tables(n_orients: int, instructions: SSEInstructions = SSE_MOD
         bins[top : top + rows] = start.reshape(-1, GRADIENT_SPAN)
         mags[top : top + rows] = instructions.rcp_into(half_m, out=half_m).reshape(
             -1, GRADIENT_SPAN)
-    bins, mags = bins.reshape(-1), mags.reshape(-1)
-    for arr in (bins, mags):
+    flat_bins, flat_mags = bins.reshape(-1), mags.reshape(-1)
+    for arr in (flat_bins, flat_mags):
         arr.setflags(write=False)
-    return bins, mags
+    return flat_bins, flat_mags

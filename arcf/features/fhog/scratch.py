@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import threading
+from typing import Any
 
 import numpy as np
 
@@ -35,7 +36,7 @@ def scratch(name: str, shape: tuple[int, ...], dtype: type) -> np.ndarray:
     0.04 ms into reused ones).  Buffers only grow, so memory is bounded by the largest batch
     seen.  Callers must not let two live arrays share a name, nor return a scratch array.
     """
-    pool = _SCRATCH.__dict__  # this thread's dict
+    pool: dict[Any, np.ndarray] = _SCRATCH.__dict__  # this thread's dict
     key = (name, shape, dtype)
     arr = pool.get(key)
     if arr is not None:
