@@ -113,7 +113,7 @@ class TrackerParams:
     #: sampler, one area resize per window, bit for bit (``mexResize``). "pyramid": windows
     #: more than twice the working size are read from one shared halving pyramid by bilinear
     #: interpolation (``arcf.features.patches.pyramid_windows``), an approximation that is
-    #: several times cheaper on large targets (docs/benchmarks.md §3).
+    #: several times cheaper on large targets (docs/benchmarks.md, "Speed").
     sampling: SamplingMode = "release"
     #: Spectral layout. "release": as the release computes. With ``aberrance="release"`` and
     #: gamma > 0 that means full spectra (its target is a spatial map used as a spectrum, so
@@ -127,7 +127,7 @@ class TrackerParams:
     #: ``ifft2(.., 'symmetric')`` reading half of a non-symmetric spectrum. Newton's search
     #: reads the correlation's own spectrum, completed by symmetry (the release hands its
     #: ``responsef`` to ``resp_newton``), one transform less. An approximation, measured in
-    #: docs/benchmarks.md §3.
+    #: docs/benchmarks.md, "Speed".
     spectra: SpectraMode = "release"
     #: Where each frame's training sample comes from. "extract" (release): a new window cut
     #: at the new position and scale, its features and their DFT. "shift": the detection
@@ -136,7 +136,7 @@ class TrackerParams:
     #: ``shift_sample``, Danelljan et al., CVPR 2017), which saves one window and its fHOG per
     #: frame; an approximation (the wrapped-in border is the opposite border's, the cell grid
     #: is the detection window's). It loses UAV123 truck4_2 in ARCF-H, so no preset uses it
-    #: (docs/benchmarks.md §3).
+    #: (docs/benchmarks.md, "Speed").
     training_sample: TrainingSampleMode = "extract"
     #: Scale each feature sample to unit mean energy per element, as ECO/STRCF's
     #: ``extract_features`` does (``normalize_power = 2``, ``normalize_size``, ``normalize_dim``).
@@ -248,17 +248,18 @@ ARCF_H = TrackerParams(
     newton_iterations=50,  # release (BACF)
     round_translation=True,  # release (BACF)
     sizing="filter_max_area",
-    # Not the release's sampler: measured on the 9 shared sequences (docs/benchmarks.md §3),
+    # Not the release's sampler: measured on the 9 shared sequences (docs/benchmarks.md, "Speed"),
     # the pyramid keeps precision / AUC within 0.005 of the exact sampler (arcf-h 0.592 / 0.348
     # against 0.592 / 0.350, bacf 0.508 / 0.310 against 0.513 / 0.311), losing no sequence,
     # and cuts the time per frame on large targets. RELEASE_COMPATIBLE restores the release's.
     sampling="pyramid",
-    # Measured best on the 9 shared sequences (docs/benchmarks.md §2): the release's form
+    # Measured best on the 9 shared sequences (docs/benchmarks.md, "Fidelity"): the release's form
     # P 0.592 / AUC 0.350, the paper's 0.521 / 0.315 at any γ in 0..1.5 (it loses truck4_2).
     aberrance="release",
     # Not the release's layout: its target's conjugate-symmetric part in half spectra, measured
-    # on the 9 shared sequences with the pyramid (docs/benchmarks.md §3): P / AUC 0.598 / 0.359
-    # against the release-compatible 0.592 / 0.350, no sequence lost, 1.2x the frame rate.
+    # on the 9 shared sequences with the pyramid (docs/benchmarks.md, "Speed"): P / AUC
+    # 0.598 / 0.358 against the release-compatible 0.592 / 0.350, no sequence lost, 1.2x the
+    # frame rate.
     spectra="half",
 )
 
@@ -273,9 +274,9 @@ ARCF_HC = TrackerParams(
     sizing="sample_area",
     whole_pixel_boxes=True,  # release: reported boxes rounded to whole pixels
     # The release's sampler: with the pyramid, ARCF-HC loses DTB70 BMX3 (precision 0.471 ->
-    # 0.074; mean 0.740 / 0.509 -> 0.704 / 0.490, docs/benchmarks.md §3).
+    # 0.074; mean 0.740 / 0.509 -> 0.704 / 0.490, docs/benchmarks.md, "Speed").
     sampling="release",
-    # Measured best on the 9 shared sequences (docs/benchmarks.md §2): the paper's form
+    # Measured best on the 9 shared sequences (docs/benchmarks.md, "Fidelity"): the paper's form
     # P 0.740 / AUC 0.509 (= the authors' published 0.740 / 0.508), the release's 0.699 / 0.494.
     aberrance="paper",
 )
@@ -350,8 +351,9 @@ class Tunable:
         return name
 
 
-#: Every parameter a caller may override, with its declared type and range (README's presets
-#: table). ``name`` is fixed by the preset; ``fhog_sse_table`` is a host path (library only).
+#: Every parameter a caller may override, with its declared type and range (the table of
+#: docs/library.md, "What an override accepts"). ``name`` is fixed by the preset;
+#: ``fhog_sse_table`` is a host path (library only).
 TUNABLE: Mapping[str, Tunable] = MappingProxyType({
     "features": Tunable(tuple, choices=("gray", "fhog", "cn")),
     "admm_iterations": Tunable(int, 1, 20),

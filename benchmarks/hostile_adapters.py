@@ -27,7 +27,8 @@ got (timed: at ``--max-fps`` 5, one every 200 ms when all is well):
 - long-query: ``?after=`` with 5,000 digits;
 - and at the end SIGTERM: its exit code.
 
-Prints Markdown tables (docs/benchmarks.md §10) and writes hostile_adapters.json.
+Prints Markdown tables (docs/benchmarks.md, "Hostile clients of the adapters") and writes
+hostile_adapters.json.
 """
 
 from __future__ import annotations

@@ -578,7 +578,7 @@ class Result(Reply):
     confidence: AnyFloat | None = Field(
         default=None, description="Estimated probability, in [0, 1], that the box overlaps the "
         "target at all (IoU > 0), from the response's peak, PSR and aberrance (calibrated on "
-        "real sequences, see the README's Track state). 1 on the frame a box was given. Absent "
+        "real sequences, see docs/track-state.md). 1 on the frame a box was given. Absent "
         "on results without a box (error, stopped, stale).")
     track_state: TrackState | None = Field(
         default=None, description="tracking, coasting (target probably hidden, the box is a "

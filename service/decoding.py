@@ -44,8 +44,8 @@ def _decode_jpeg(payload: bytes) -> np.ndarray | None:
 
     Why: both wrap libjpeg-turbo with its default (accurate) IDCT and upsampling and give the
     same pixels (tests/service/test_imagecheck.py), but simplejpeg decodes the benchmark's 1280x720
-    frames in 2.0 ms where ``cv2.imdecode`` takes 4.7 (docs/benchmarks.md §3), a third of a
-    tracked frame's cost. Anything else (CMYK, a header or stream simplejpeg refuses,
+    frames in 2.0 ms where ``cv2.imdecode`` takes 4.7 (docs/service-design.md, "Decoding"), a
+    third of a tracked frame's cost. Anything else (CMYK, a header or stream simplejpeg refuses,
     truncated data) goes to ``cv2.imdecode`` as before, which decodes it or reports it.
     """
     try:

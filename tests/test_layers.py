@@ -142,3 +142,27 @@ def test_the_wheel_installs_one_namespace() -> None:
         declared = {f for f in subs
                     if ".".join([PACKAGE[folder], *Path(f).parts[1:]]) in project["packages"]}
         assert declared == subs, f"{folder}: packages missing from pyproject"
+
+
+@pytest.mark.integration
+def test_the_built_wheel_holds_arcf_only(tmp_path: Path) -> None:
+    """Built as pip builds it: every file under ``arcf/`` (or the wheel's metadata), with the
+    data the package reads at run time, and console scripts that point into ``arcf``."""
+    import zipfile
+
+    subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w",
+                    str(tmp_path), str(ROOT)], check=True, timeout=600,
+                   capture_output=True)
+    (wheel,) = tmp_path.glob("arcf-*.whl")
+    names = zipfile.ZipFile(wheel).namelist()
+    tops = {n.split("/", 1)[0] for n in names}
+    assert {t for t in tops if not t.endswith(".dist-info")} == {"arcf"}
+    for needed in ("arcf/features/tables/sse_amd_epyc.txt", "arcf/schemas/json/index.json",
+                   "arcf/adapters/static/view.html", "arcf/service/app.py",
+                   "arcf/loadtools/demo.py", "arcf/features/fhog/fused.py"):
+        assert needed in names, needed
+    (entry_points,) = [n for n in names if n.endswith(".dist-info/entry_points.txt")]
+    scripts = [line.split("=", 1)[1].strip()
+               for line in zipfile.ZipFile(wheel).read(entry_points).decode().splitlines()
+               if "=" in line]
+    assert scripts and all(s.startswith("arcf.") or s.startswith("arcf:") for s in scripts)

@@ -2,7 +2,8 @@
 
 The authors' release computes fHOG with ``RSQRTPS`` / ``RCPPS`` (Piotr's toolbox ``gradMag``):
 ~12-bit approximations whose last bits differ between CPU vendors, and which decide orientation
-bins near their boundaries and hence, on ARCF-H, whole trajectories (``docs/benchmarks.md`` §2).
+bins near their boundaries and hence, on ARCF-H, whole trajectories (``docs/benchmarks.md``,
+"Fidelity").
 ``fhog(arithmetic="release")`` *models* the instructions of the AMD EPYC that traced the release;
 an :class:`SSETables` *replays* the real instructions of whichever CPU ``tools/sse_approx_dump.c``
 was run on, bit for bit, on any machine.
