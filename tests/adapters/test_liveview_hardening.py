@@ -12,6 +12,7 @@ from collections.abc import Iterator
 from typing import Any
 
 import pytest
+
 from arcf.adapters import liveview
 from arcf.adapters.liveview import MAX_PER_CLIENT, LiveView, _picture
 from arcf.adapters.tap import TapFrame

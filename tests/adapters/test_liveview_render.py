@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+
 from arcf.adapters.liveview import STALE_BGR, Watch, colour_bgr, draw
 from arcf.adapters.tap import TapFrame
 from arcf.schemas import Result, ResultStatus

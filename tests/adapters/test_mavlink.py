@@ -17,6 +17,8 @@ import numpy as np
 import pytest
 
 os.environ.setdefault("MAVLINK20", "1")
+from pymavlink import mavutil
+
 from arcf.adapters.mavlink import (
     TARGET_DATA_NONE,
     CameraConfig,
@@ -25,14 +27,13 @@ from arcf.adapters.mavlink import (
     rectangle_box,
     tracking_status,
 )
-from arcf.loadtools.groundstation import GroundStation
-from arcf.loadtools.procs import ServiceProcess, free_port
-from arcf.schemas import Result
-from arcf.service.client import TrackingClient
-from pymavlink import mavutil
-
 from arcf.data import data_root
 from arcf.eval import load_dataset
+from arcf.loadtools.groundstation import GroundStation
+from arcf.loadtools.procs import ServiceProcess, free_port
+from arcf.loadtools.waiting import wait_until
+from arcf.schemas import Result
+from arcf.service.client import TrackingClient
 
 mav = mavutil.mavlink
 pytestmark = [pytest.mark.integration,
@@ -206,7 +207,7 @@ def rig(sequence: Any) -> Iterator[dict[str, Any]]:
                 return
             publisher.publish_frame(STREAM, data=data[seq % len(data)], seq=seq)
             sent.append(seq)
-            time.sleep(0.1)
+            time.sleep(0.1)  # the stimulus: a 10 fps camera
 
     thread = threading.Thread(target=publish, daemon=True)
     thread.start()
@@ -232,12 +233,8 @@ def _no_box(status: Any) -> bool:
             and all(np.isnan([status.point_x, status.rec_top_x, status.rec_bottom_y])))
 
 
-def _wait(predicate: Any, timeout: float = 10.0) -> None:
-    deadline = time.monotonic() + timeout
-    while not predicate():
-        if time.monotonic() > deadline:
-            raise AssertionError("timed out")
-        time.sleep(0.02)
+def _wait(predicate: Any, timeout: float = 30.0) -> None:
+    wait_until(predicate, timeout=timeout, what="the MAVLink rig's condition")
 
 
 def test_a_ground_station_tracks_through_the_mavlink_camera(rig: dict[str, Any]) -> None:
@@ -284,12 +281,20 @@ def test_a_ground_station_tracks_through_the_mavlink_camera(rig: dict[str, Any])
     assert result == mav.MAV_RESULT_ACCEPTED
     session = endpoint.cameras[0].session_id
     assert session is not None
-    time.sleep(0.5)
+    assert endpoint.cameras[0].status_interval_s == pytest.approx(0.2)  # as asked
+    _wait(lambda: any(r.session_id == session and r.track_state is not None
+                      for r in list(results)))  # tracking
+
+    def statuses(since: float) -> list[Any]:
+        return [s for s in station.since(since, "CAMERA_TRACKING_IMAGE_STATUS")
+                if s.get_srcComponent() == COMP]
+
     t0 = time.monotonic()
-    time.sleep(3.0)
-    status = [s for s in station.since(t0, "CAMERA_TRACKING_IMAGE_STATUS")
-              if s.get_srcComponent() == COMP]
-    assert 11 <= len(status) <= 19, len(status)  # 15 expected in 3 s
+    _wait(lambda: len(statuses(t0)) >= 10)
+    status = statuses(t0)
+    # never faster than asked: one per 0.2 s, and after a stall at most a second's catch-up
+    # (how close to 5 Hz a loaded machine keeps is its own figure)
+    assert len(status) <= (time.monotonic() - t0) / 0.2 + 6, len(status)
     assert all(s.tracking_mode == mav.CAMERA_TRACKING_MODE_RECTANGLE for s in status)
     assert all(s.tracking_status & mav.CAMERA_TRACKING_STATUS_FLAGS_ACTIVE
                or s.tracking_status == mav.CAMERA_TRACKING_STATUS_FLAGS_ERROR for s in status)
@@ -321,9 +326,9 @@ def test_a_ground_station_tracks_through_the_mavlink_camera(rig: dict[str, Any])
     _wait(lambda: any(r.session_id == session and r.status == "reinitialized"
                       for r in list(results)))
     t0 = time.monotonic()
-    _wait(lambda: station.since(t0, "CAMERA_TRACKING_IMAGE_STATUS"))
-    time.sleep(0.5)
-    point = station.since(t0, "CAMERA_TRACKING_IMAGE_STATUS")[-1]
+    # statuses after the re-initialisation report the point
+    _wait(lambda: any(s.tracking_mode == mav.CAMERA_TRACKING_MODE_POINT for s in statuses(t0)))
+    point = statuses(t0)[-1]
     assert point.tracking_mode == mav.CAMERA_TRACKING_MODE_POINT
     assert point.radius == pytest.approx(0.02, abs=0.01)
 
@@ -334,8 +339,8 @@ def test_a_ground_station_tracks_through_the_mavlink_camera(rig: dict[str, Any])
     # stop: acknowledged, idle, and the service runs no session
     result, _ = station.command(mav.MAV_CMD_CAMERA_STOP_TRACKING)
     assert result == mav.MAV_RESULT_ACCEPTED
-    t0 = time.monotonic()
-    time.sleep(0.6)
+    t0 = time.monotonic()  # after the stop's ack: every later status says idle
+    _wait(lambda: len(station.since(t0, "CAMERA_TRACKING_IMAGE_STATUS")) >= 2)
     after = station.since(t0, "CAMERA_TRACKING_IMAGE_STATUS")
     assert after and all(s.tracking_status == mav.CAMERA_TRACKING_STATUS_FLAGS_IDLE
                          for s in after)
@@ -474,9 +479,12 @@ def test_hostile_parameters_retransmissions_and_rates(rig: dict[str, Any]) -> No
     assert station.command(mav.MAV_CMD_CAMERA_TRACK_RECTANGLE, *rect, confirmation=1)[0] == \
         mav.MAV_RESULT_ACCEPTED
     assert endpoint.counts["retransmissions"] == 1
-    time.sleep(1.0)
-    assert sum(r.status == "reinitialized" for r in list(results)) == 1
     assert station.command(mav.MAV_CMD_CAMERA_STOP_TRACKING)[0] == mav.MAV_RESULT_ACCEPTED
+    # the session's results come in order: a second execution's re-initialisation would be
+    # in before its stopped result
+    _wait(lambda: any(r.session_id == session and r.status == "stopped"
+                      for r in list(results)))
+    assert sum(r.status == "reinitialized" for r in list(results)) == 1
     sub.close()
 
 

@@ -16,6 +16,8 @@ from typing import Any
 import pytest
 
 os.environ.setdefault("MAVLINK20", "1")
+from pymavlink import mavutil
+
 from arcf.adapters.mavlink import (
     DONE_MAX,
     MAX_PEERS,
@@ -27,7 +29,6 @@ from arcf.loadtools.groundstation import GroundStation
 from arcf.loadtools.procs import free_port
 from arcf.loadtools.waiting import wait_until as _wait
 from arcf.schemas import Frame
-from pymavlink import mavutil
 
 mav = mavutil.mavlink
 STREAM, COMP = "cam1", 100

@@ -24,13 +24,15 @@ import pytest
 
 pytest.importorskip("zenoh")
 os.environ.setdefault("MAVLINK20", "1")
+from pymavlink import mavutil
+
 from arcf.adapters import ros2_types as rt
 from arcf.adapters.ros2 import Ros2Bridge, topic_key
 from arcf.loadtools.procs import ServiceProcess, free_port
+from arcf.loadtools.waiting import wait_until
 from arcf.schemas import Result
 from arcf.service.client import TrackingClient
 from arcf.service.transport import open_session
-from pymavlink import mavutil
 
 mav = mavutil.mavlink
 pytestmark = pytest.mark.integration
@@ -47,12 +49,8 @@ def service() -> Iterator[ServiceProcess]:
     assert svc.stop() == 0
 
 
-def _wait(predicate: Any, timeout: float = 15.0, what: str = "condition") -> None:
-    deadline = time.monotonic() + timeout
-    while not predicate():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out waiting for {what}")
-        time.sleep(0.01)
+def _wait(predicate: Any, timeout: float = 30.0, what: str = "condition") -> None:
+    wait_until(predicate, timeout=timeout, what=what)
 
 
 # ---------------------------------------------------------------------------------- MAVLink
@@ -334,7 +332,7 @@ def test_a_ros2_bridge_with_a_bad_dotted_override_logs_the_refusal(
                         overrides={"state.reacquire": True, "state.nope": 1})
     node = open_session("client", connect=[service.endpoint])
     try:
-        with caplog.at_level(logging.WARNING, logger="arcf.ros2"):
+        with caplog.at_level(logging.WARNING, logger="arcf.adapters.ros2"):
             node.put(topic_key(0, f"/arcf/{stream}/track", rt.DETECTION_2D),
                      _track_request(reacquire_scenario.init_box))
             _wait(lambda: bridge.counts["refused"] == 1, what="the refusal")

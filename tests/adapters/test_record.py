@@ -15,17 +15,18 @@ import pytest
 pytest.importorskip("zenoh")
 pytest.importorskip("mcap")
 
-from arcf.adapters.record import Recorder
-from arcf.loadtools.procs import ServiceProcess
-from arcf.loadtools.video import decode_video, encode_video
-from arcf.service import foxglove
-from arcf.service.client import TrackingClient
-from arcf.service.decoding import decode_compressed
 from mcap.reader import make_reader
 
 import arcf
+from arcf.adapters.record import Recorder
 from arcf.eval.metrics import score_sequence
 from arcf.eval.recording import score_recording
+from arcf.loadtools.procs import ServiceProcess
+from arcf.loadtools.video import decode_video, encode_video
+from arcf.loadtools.waiting import wait_until
+from arcf.service import foxglove
+from arcf.service.client import TrackingClient
+from arcf.service.decoding import decode_compressed
 
 pytestmark = pytest.mark.integration
 N = 20
@@ -44,12 +45,14 @@ def service():
 
 
 def replay(client: TrackingClient, stream: str, frames: list[bytes], box, presets: list[str],
-           encoding: str = "jpeg") -> list:
-    """Sessions of ``presets`` on the stream; frame i sent once every session answered i - 1."""
+           encoding: str = "jpeg", recorder: Recorder | None = None) -> list:
+    """Sessions of ``presets`` on the stream; frame i sent once every session answered i - 1.
+    With a ``recorder``, waits until it has recorded every frame and every result too."""
     results = client.results(stream)
     for preset in presets:
         client.start(stream, box, preset=preset, frame_seq=0)
     got: list = []
+    stale = 0
     for i, data in enumerate(frames):
         client.publish_frame(stream, data=data, encoding=encoding, seq=i)
         deadline = time.monotonic() + 30
@@ -60,7 +63,12 @@ def replay(client: TrackingClient, stream: str, frames: list[bytes], box, preset
                 continue
             if r.status != "stale":  # a notice about no frame (a stall over a second)
                 got.append(r)
-    time.sleep(0.3)  # the recorder hears the last result too
+            else:
+                stale += 1
+    if recorder is not None:  # the recorder hears the last result too
+        wait_until(lambda: recorder.frames >= len(frames)
+                   and recorder.results >= len(got) + stale, timeout=30,
+                   what="every frame and result recorded")
     return got
 
 
@@ -78,7 +86,8 @@ def test_every_frame_and_result_is_recorded_in_foxglove_schemas(service, clip,
     seq, frames = clip
     with TrackingClient(connect=[service.endpoint], frame_congestion="block") as client:
         with Recorder(client, "rec", tmp_path) as recorder:
-            got = replay(client, "rec", frames, seq.init_box, ["bacf", "arcf-h"])
+            got = replay(client, "rec", frames, seq.init_box, ["bacf", "arcf-h"],
+                         recorder=recorder)
         files = recorder.files
     assert len(got) == 2 * N and recorder.frames == N
     topics = messages(files)
@@ -120,13 +129,10 @@ def test_a_recording_rescores_as_the_library_on_the_same_frames(service, clip,
     gt_file.write_text("".join(",".join(f"{v:g}" for v in row) + "\n" for row in gt))
     with TrackingClient(connect=[service.endpoint], frame_congestion="block") as client, \
             Recorder(client, "rescore", tmp_path / "rec") as recorder:
-        replay(client, "rescore", frames, seq.init_box, ["bacf"])
+        replay(client, "rescore", frames, seq.init_box, ["bacf"], recorder=recorder)
         # the stream has ended: its session's stale notice is recorded too, and repeats the
         # last frame's number without being about it (it must not erase that frame's box)
-        deadline = time.monotonic() + 30
-        while recorder.results <= N and time.monotonic() < deadline:
-            time.sleep(0.05)
-        assert recorder.results > N
+        wait_until(lambda: recorder.results > N, timeout=30, what="the stale notice recorded")
     (score,) = score_recording(recorder.files, gt_file).values()
     library = arcf.run_sequence(arcf.create_tracker("bacf"),
                                 (decode_compressed(f) for f in frames), seq.init_box).boxes
@@ -140,7 +146,8 @@ def test_a_video_stream_is_recorded_unit_by_unit(service, clip, tmp_path: Path) 
     units = encode_video((decode_compressed(f) for f in frames), "h264", gop=10)
     with TrackingClient(connect=[service.endpoint], frame_congestion="block") as client, \
             Recorder(client, "vid", tmp_path) as recorder:
-        replay(client, "vid", units, seq.init_box, ["bacf"], encoding="h264")
+        replay(client, "vid", units, seq.init_box, ["bacf"], encoding="h264",
+               recorder=recorder)
     topics = messages(recorder.files)
     video = [foxglove.deserialize(m.data, foxglove.COMPRESSED_VIDEO)
              for _, _, m in topics["/arcf/vid/video"]]
@@ -153,7 +160,7 @@ def test_disk_use_is_capped_by_rotation(service, clip, tmp_path: Path) -> None:
     seq, frames = clip
     with TrackingClient(connect=[service.endpoint], frame_congestion="block") as client, \
             Recorder(client, "rot", tmp_path, segment_bytes=256 << 10, keep=2) as recorder:
-        replay(client, "rot", frames, seq.init_box, ["bacf"])
+        replay(client, "rot", frames, seq.init_box, ["bacf"], recorder=recorder)
     kept = sorted(tmp_path.glob("rot-*.mcap"))
     assert len(recorder.files) > 3 and len(kept) == 2  # rotated, the oldest deleted
     assert kept == recorder.files[-2:]

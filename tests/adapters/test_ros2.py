@@ -13,6 +13,10 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 import zenoh
+from pycdr2 import IdlStruct
+from pycdr2.types import array, float64, int32, sequence, uint8, uint32
+from zenoh.ext import Int64, z_deserialize
+
 from arcf.adapters import ros2_types as rt
 from arcf.adapters.ros2 import (
     STALE,
@@ -22,16 +26,12 @@ from arcf.adapters.ros2 import (
     diagnostics,
     topic_key,
 )
+from arcf.data import data_root
+from arcf.eval import load_dataset
 from arcf.loadtools.procs import ServiceProcess
 from arcf.schemas import Result
 from arcf.service.client import TrackingClient
 from arcf.service.transport import open_session
-from pycdr2 import IdlStruct
-from pycdr2.types import array, float64, int32, sequence, uint8, uint32
-from zenoh.ext import Int64, z_deserialize
-
-from arcf.data import data_root
-from arcf.eval import load_dataset
 
 # --- the published facts (rmw_zenoh docs/design.md and generated type descriptions) ---------
 COMPRESSED_IMAGE_HASH = "RIHS01_15640771531571185e2efc8a100baf923961a4d15d5569652e6cb6691e8e371a"

@@ -17,7 +17,6 @@ while the other streams run on without a gap, and the restarted instance takes i
 
 from __future__ import annotations
 
-import itertools
 import json
 import os
 import shutil
@@ -32,16 +31,17 @@ import pytest
 
 pytest.importorskip("zenoh")
 
+import arcf
+from arcf.data import data_root
+from arcf.eval import load_dataset
 from arcf.loadtools.compose import INSTANCES, ComposeStack, stack_env
 from arcf.loadtools.driver import Clip, Fleet, Pacing, failover_fleet
 from arcf.loadtools.ledger import StreamRecord
 from arcf.loadtools.procs import free_port
+from arcf.loadtools.waiting import wait_until
 from arcf.service.client import TrackingClient
 from arcf.service.cluster import owner
-
-import arcf
-from arcf.data import data_root
-from arcf.eval import load_dataset
+from arcf.service.settings import ServiceSettings
 
 ROOT = Path(__file__).resolve().parents[2]
 DEPLOY = ROOT / "deploy"
@@ -156,39 +156,53 @@ def test_host_client_tracks_a_real_sequence_through_the_router(stack: Stack) -> 
 
 
 def test_prometheus_scrapes_both_instances(stack: Stack) -> None:
-    deadline = time.monotonic() + 30
     health: dict[str, str] = {}
-    while time.monotonic() < deadline:
+
+    def all_up() -> bool:
         targets = stack.prometheus("/api/v1/targets")["activeTargets"]
-        health = {t["labels"]["instance"]: t["health"] for t in targets
-                  if t["labels"]["job"] == "arcf-service"}
-        if sorted(health) == list(INSTANCES) and set(health.values()) == {"up"}:
-            break
-        time.sleep(1.0)
-    assert health == dict.fromkeys(INSTANCES, "up")
+        health.clear()
+        health.update({t["labels"]["instance"]: t["health"] for t in targets
+                       if t["labels"]["job"] == "arcf-service"})
+        return health == dict.fromkeys(INSTANCES, "up")
+
+    wait_until(all_up, timeout=60, what=f"both instances up in Prometheus ({health})")
+
     # the previous test's frames were counted and scraped (5 s interval)
-    deadline = time.monotonic() + 20
-    total = 0.0
-    while time.monotonic() < deadline and total <= 0:
+    def total() -> float:
         data = stack.prometheus("/api/v1/query", query="sum(arcf_frames_processed_total)")
-        total = float(data["result"][0]["value"][1]) if data["result"] else 0.0
-        time.sleep(1.0)
-    assert total > 0
+        return float(data["result"][0]["value"][1]) if data["result"] else 0.0
+
+    wait_until(lambda: total() > 0, timeout=60, what="frames counted in Prometheus")
 
 
-def _assert_flowing(record: StreamRecord, t0: float, t1: float) -> None:
-    """A stream the failover does not concern keeps flowing from ``t0`` to ``t1``.
+def _assert_flowing(record: StreamRecord, t0: float, t_done: float) -> None:
+    """A stream the failover does not concern keeps flowing through an event that started at
+    ``t0`` and whose takeover completed at ``t_done`` (the last moved stream resumed).
 
     Everything here shares this machine's 2 cores: when the survivor takes over the killed
     instance's sessions, or the restarted instance boots next to it, the survivor's own streams
-    may shed a few frames (newest frame wins; each skipped frame is reported in the next
-    result's ``dropped``): docs/benchmarks.md §9 measured 1-8 per event with one worker per
-    instance, as here. More than that, or a stall, is a failure.
+    may shed frames (newest frame wins; each skipped frame is reported in the next result's
+    ``dropped``). So: every frame is answered or counted as dropped, in order; frames are shed
+    only while the takeover is in progress, so no more than the stream sent from ``t0`` to
+    ``t_done`` plus a frame queue's worth as the survivor catches up (how many that is on a
+    given machine, 1-8 per event in docs/benchmarks.md, "Containers", is the machine's
+    figure); and its results go on afterwards (the caller waits for them).
     """
     name = record.name
-    assert record.gaps(t0, t1) <= 8, f"{name}: more frames shed than a failover explains"
-    times = [r.t for r in record.received if t0 <= r.t <= t1]
-    assert len(times) >= 2 and max(b - a for a, b in itertools.pairwise(times)) < 2.5, name
+    counts = record.accounting()
+    assert counts["unaccounted"] == 0 and counts["out_of_order"] == 0, (name, counts)
+    with record.cond:
+        during = sum(1 for _, t in record.sent if t0 <= t <= t_done)
+    bound = during + ServiceSettings().frame_queue + 1
+    assert record.gaps(t0, time.monotonic()) <= bound, \
+        f"{name}: more frames shed than the takeover explains ({bound})"
+
+
+def _results_after(records: list[StreamRecord], t: float, n: int = 5) -> None:
+    """Wait (a generous deadline) until each stream has ``n`` results that arrived after
+    ``t``."""
+    wait_until(lambda: all(sum(r.t > t for r in list(rec.received)) >= n for rec in records),
+               timeout=60, what=f"{n} results of each stream after the event")
 
 
 def test_docker_kill_moves_streams_and_the_instance_comes_back(stack: Stack) -> None:
@@ -201,18 +215,17 @@ def test_docker_kill_moves_streams_and_the_instance_comes_back(stack: Stack) -> 
             failover_fleet(client, Clip.of(seq), names, preset="bacf", fps=5,
                            frames=600) as fleet:  # bounded: 2 minutes at 5 fps
         ledger = fleet.ledger
-        time.sleep(4.0)
-        assert all(ledger[n].received for n in names), "a stream without results before the kill"
+        _results_after([ledger[n] for n in names], 0.0, n=1)  # every stream tracked first
 
         t_kill = time.monotonic()
         subprocess.run(["docker", "kill", stack.container("arcf-2")], check=True,
                        capture_output=True, timeout=30)
-        resumed = ledger.first_resumed(victim, t_kill, timeout=15)
+        resumed = ledger.first_resumed(victim, t_kill, timeout=60)
         assert sorted(resumed) == sorted(victim), "streams of the killed container not resumed"
-        failover_s = max(resumed.values()) - t_kill
-        time.sleep(2.0)
+        failover_s = max(resumed.values()) - t_kill  # reported, not asserted
+        _results_after([ledger[n] for n in names], max(resumed.values()))
         for n in others:
-            _assert_flowing(ledger[n], t_kill - 1.0, time.monotonic())
+            _assert_flowing(ledger[n], t_kill - 1.0, max(resumed.values()))
             assert ledger[n].first_with_status("resumed", 0.0) is None, n
         for n in victim:
             after = [r for r in ledger[n].received if r.t > resumed[n]]
@@ -226,9 +239,9 @@ def test_docker_kill_moves_streams_and_the_instance_comes_back(stack: Stack) -> 
             stack("start", "arcf-2")
         returned = ledger.first_resumed(victim, t_back, timeout=60)
         assert sorted(returned) == sorted(victim), "the restarted instance took nothing back"
-        time.sleep(2.0)
+        _results_after([ledger[n] for n in names], max(returned.values()))
         for n in others:
-            _assert_flowing(ledger[n], t_back, time.monotonic())
+            _assert_flowing(ledger[n], t_back, max(returned.values()))
         stack.wait_healthy(("arcf-1", "arcf-2"))
         print(f"docker kill: streams resumed on the survivor after {failover_s * 1e3:.0f} ms "
               f"(restarted by its policy: {state['Running']}); taken back "

@@ -22,6 +22,7 @@ from typing import Any
 
 import pytest
 import yaml
+
 from arcf.loadtools.procs import free_port
 from arcf.service.settings import ServiceSettings
 

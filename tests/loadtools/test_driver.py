@@ -2,8 +2,10 @@
 (no Zenoh, no worker): schedules, closed loops, holding and releasing, re-initialisation at a
 wrap, session bookkeeping and its failures, and the ledger's accounting of what came back.
 
-Timing assertions leave wide margins (the machine is shared); the schedules themselves are
-checked exactly on :meth:`Pacing.schedule`."""
+The schedules themselves are checked exactly on :meth:`Pacing.schedule`; against the clock,
+a running stream is only checked for what no machine can excuse (a frame before its slot, a
+wait that outlasts what it waits for), since how late a shared machine runs a thread is the
+machine's figure."""
 
 from __future__ import annotations
 
@@ -15,9 +17,11 @@ from typing import Any
 
 import numpy as np
 import pytest
+
 from arcf.loadtools.driver import GOLDEN, Clip, Fleet, Pacing
 from arcf.loadtools.ledger import Ledger, meets_capacity, percentiles
 from arcf.loadtools.loadtest import run_load
+from arcf.loadtools.waiting import wait_until
 
 
 def _result(session: str, seq: int, *, dropped: int = 0, status: str = "tracking",
@@ -120,37 +124,46 @@ def test_fixed_rate_schedules_spread_phases_from_the_fleet_epoch() -> None:
 def test_fixed_rate_streams_keep_their_period() -> None:
     service = FakeService()
     fleet = Fleet(service, [_clip()], pacing=Pacing.fixed_rate(20.0))
+    t_add = time.monotonic()
     a, b = fleet.add(2, frames=8)
-    assert fleet.wait_published(timeout=5)
+    assert fleet.wait_published(timeout=30)
     for st in (a, b):
         assert [s for s, _ in st.record.sent] == list(range(8))
-        times = np.array([t for _, t in service.published(st.name)])
-        assert np.median(np.diff(times)) == pytest.approx(0.05, abs=0.015)
-        assert times[-1] - times[0] == pytest.approx(0.35, abs=0.1)  # no drift over the run
+        times = [t for _, t in service.published(st.name)]
+        assert times == sorted(times)
+        # frame i never leaves before its slot on the stream's phase (the slots from the one
+        # at or after the stream was added; the stream started at or after that): a stream
+        # that ran ahead, or drifted early, fails; a late thread is the machine's figure
+        slot = fleet.pacing.schedule(st.index, fleet._epoch, t_add)
+        assert all(t >= slot(i) - 1e-3 for i, t in enumerate(times)), (times, slot(0))
 
 
 def test_delays_staggers_and_holding() -> None:
     service = FakeService()
     fleet = Fleet(service, [_clip()], pacing=Pacing.closed_loop(1))
     held = fleet.add(3, frames=1, stagger=0.15, hold=True)
-    time.sleep(0.3)
+    time.sleep(0.3)  # the window in which nothing may happen
     assert not any(c[0] == "publish" for c in service.calls)  # held until released
     t0 = fleet.release()
-    assert fleet.wait_published(timeout=5)
+    assert fleet.wait_published(timeout=30)
     firsts = [service.published(st.name)[0][1] - t0 for st in held]
-    assert firsts[0] < 0.1 and firsts[1] >= 0.15 - 1e-3 and firsts[2] >= 0.3 - 1e-3
-    (late,) = fleet.add(1, frames=1, delay=0.2)
+    # in stagger order, none before its delay (how late is the machine's)
+    assert 0 <= firsts[0] <= firsts[1] <= firsts[2], firsts
+    assert firsts[1] >= 0.15 - 1e-3 and firsts[2] >= 0.3 - 1e-3
     t1 = time.monotonic()
-    assert fleet.wait_published(timeout=5)
-    assert service.published(late.name)[0][1] - t1 >= 0.19
+    (late,) = fleet.add(1, frames=1, delay=0.2)
+    assert fleet.wait_published(timeout=30)
+    assert service.published(late.name)[0][1] - t1 >= 0.2 - 1e-3
 
 
 # ---------------------------------------------------------------------------- closed loops
 def test_closed_loop_keeps_exactly_in_flight_frames_in_the_air() -> None:
-    service = FakeService(delay=0.03)
+    # answers 0.25 s after each frame: long enough that the frame behind it leaves first even
+    # on a busy machine, which the overlap count below relies on
+    service = FakeService(delay=0.25)
     fleet = Fleet(service, [_clip()], pacing=Pacing.closed_loop(2))
     (st,) = fleet.add(1, sessions=2, frames=12)
-    assert fleet.wait_published(timeout=10) and _all_answered(st, 24)
+    assert fleet.wait_published(timeout=60) and _all_answered(st, 24, timeout=60)
     sent = dict(st.record.sent)
     overlapped = 0
     for k in range(2, 12):
@@ -166,19 +179,24 @@ def test_closed_loop_keeps_exactly_in_flight_frames_in_the_air() -> None:
 def test_lock_step_gives_up_on_a_lost_frame_and_pausing_interrupts_the_wait() -> None:
     service = FakeService(lose={3})
     fleet = Fleet(service, [_clip()], pacing=Pacing(fps=0.0, in_flight=1, wait_s=0.3))
-    (st,) = fleet.add(1, frames=6)
     t0 = time.monotonic()
-    assert fleet.wait_published(timeout=5)
-    assert time.monotonic() - t0 >= 0.3  # frame 4 waited for frame 3's answer, then gave up
+    (st,) = fleet.add(1, frames=6)
+    assert fleet.wait_published(timeout=30)
+    # frame 4 left only after frame 3's wait (0.3 s) ran out: a lower bound, not a figure
+    sent = dict(st.record.sent)
+    assert sent[4] - t0 >= 0.3
     assert _all_answered(st, 5)
     assert [r.frame_seq for r in st.record.received] == [0, 1, 2, 4, 5]
 
     stuck = Fleet(service, [_clip()], pacing=Pacing.lock_step())  # waits up to 30 s
     (blocked,) = stuck.add(1, names=["blocked"], frames=10)
-    time.sleep(0.3)  # frames 0-3 answered at once, then waiting on lost frame 3
+    # frames 0-3 answered at once, then waiting on lost frame 3
+    wait_until(lambda: len(service.published("blocked")) == 4, timeout=30,
+               what="frames 0-3 published")
     t1 = time.monotonic()
     stuck.pause()
-    assert time.monotonic() - t1 < 2.0
+    # the pause interrupted the wait rather than sitting out the lock step's 30 s
+    assert time.monotonic() - t1 < Pacing.lock_step().wait_s / 2
     assert [s for s, _ in service.published("blocked")] == [0, 1, 2, 3]  # nothing after pause
     assert not blocked.publishing()
 
@@ -299,7 +317,7 @@ def test_handover_and_first_resumed() -> None:
     for seq in range(5):
         rec.on_result(_result("s", seq))
     t_event = time.monotonic()
-    time.sleep(0.01)
+    time.sleep(0.01)  # the stimulus: the resumed result comes 10 ms after the event
     rec.on_result(_result("s", 8, status="resumed"))
     found = ledger.first_resumed(["cam"], t_event, timeout=1)
     assert set(found) == {"cam"} and found["cam"] > t_event
@@ -313,16 +331,18 @@ def test_windows_latency_and_the_capacity_criterion() -> None:
     ledger = Ledger()
     rec = ledger.open("cam")
     rec.add_session("s")
-    t0 = time.monotonic()
+    t0, wall0 = time.monotonic(), time.time_ns()
     for k in range(4):
         rec.on_sent(k)
         rec.on_result(_result("s", k, capture_ns=time.time_ns() - int(0.05e9)))
     w = ledger.window(t0, time.monotonic())
+    spent_ms = (time.time_ns() - wall0) / 1e6  # however long this machine took for the loop
     assert w["results"] == 4 and w["dropped"] == 0 and w["errors"] == 0
-    assert 49 <= w["latency_ms"]["p50"] <= w["latency_ms"]["max"] < 150
+    # captured 50 ms before it was answered, plus what the loop itself took
+    assert 50 <= w["latency_ms"]["p50"] <= w["latency_ms"]["max"] <= 50 + spent_ms
     assert ledger.window(t0 - 10, t0 - 5)["results"] == 0
     assert np.isnan(percentiles([])["p99"])  # nothing measured
-    assert meets_capacity(4, 0, w["latency_ms"]["p99"])
+    assert meets_capacity(4, 0, 50.0)
     assert not meets_capacity(4, 1, 10.0) and not meets_capacity(0, 0, 10.0)
     assert not meets_capacity(4, 0, 100.0)
 

@@ -6,11 +6,10 @@ import pytest
 
 pytest.importorskip("zenoh")
 
-from arcf.loadtools.loadtest import markdown, run_load
-from arcf.loadtools.procs import ServiceProcess
-
 from arcf.data import data_root
 from arcf.eval import load_dataset
+from arcf.loadtools.loadtest import markdown, run_load
+from arcf.loadtools.procs import ServiceProcess
 
 pytestmark = [pytest.mark.integration,
               pytest.mark.skipif(not (data_root() / "uav123_10fps").is_dir(),

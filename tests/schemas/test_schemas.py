@@ -11,6 +11,8 @@ from typing import Any
 
 import msgpack
 import pytest
+from pydantic import ValidationError
+
 from arcf.schemas import (
     MESSAGE_TYPES,
     SCHEMA_VERSION,
@@ -47,7 +49,6 @@ from arcf.schemas import (
     encode,
     export,
 )
-from pydantic import ValidationError
 
 NAN = float("nan")
 

@@ -14,12 +14,12 @@ from pathlib import Path
 
 import pytest
 import zenoh
-from arcf.loadtools.procs import ServiceProcess, free_port
-from arcf.schemas import Status, StatusRequest, decode, encode
-from arcf.service.client import TrackingClient
 
 from arcf.data import data_root
 from arcf.eval import load_dataset
+from arcf.loadtools.procs import ServiceProcess, free_port
+from arcf.schemas import Status, StatusRequest, decode, encode
+from arcf.service.client import TrackingClient
 
 ROOT = Path(__file__).resolve().parents[2]
 DEPLOY = ROOT / "deploy" / "zenoh"
@@ -91,6 +91,8 @@ def test_only_authorised_stations_track(tmp_path: Path) -> None:
                                 "arcf/v1/streams/cam/sessions/*/results")]
             spoof = impostor.declare_queryable(
                 "arcf/v1/control", lambda q: q.reply(q.key_expr, b"spoofed"))
+            # the stimulus: the impostor's declarations have time to spread (nothing to wait
+            # for: the router denies them; a slow machine only makes the checks below weaker)
             time.sleep(0.3)
             with TrackingClient(session=station) as good, TrackingClient(session=intruder) as bad:
                 results = good.results("cam")
@@ -114,7 +116,7 @@ def test_only_authorised_stations_track(tmp_path: Path) -> None:
                         got[-1] = results.get(timeout=10)
                 forged = got[-1].model_copy(update={"frame_seq": 999})
                 intruder.put(good.keys.results("cam", ack.session_id), encode(forged))
-                time.sleep(0.5)
+                time.sleep(0.5)  # the window in which a forged result would arrive (none may)
                 assert [r.frame_seq for r in got] == [0, 1, 2, 3]
                 assert [r.status.value for r in got] == ["initialized"] + ["tracking"] * 3
                 # nothing forged or injected arrived (the stream's stale notices may)

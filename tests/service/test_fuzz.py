@@ -14,6 +14,11 @@ import cv2
 import msgpack
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+import arcf
+from arcf import ARCFError
 from arcf.schemas import (
     MESSAGE_TYPES,
     SCHEMA_VERSION,
@@ -26,11 +31,6 @@ from arcf.schemas import (
 )
 from arcf.service.decoding import decode_image
 from arcf.service.imagecheck import image_size
-from hypothesis import HealthCheck, given, settings
-from hypothesis import strategies as st
-
-import arcf
-from arcf import ARCFError
 from arcf.tracker import validate_box, validate_frame
 
 FAST = settings(max_examples=1000, deadline=None, suppress_health_check=[HealthCheck.too_slow])

@@ -4,8 +4,9 @@ One victim stream is tracked at 10 fps throughout; another station then does wha
 malicious one can: puts frames and garbage on wildcard key expressions, numbers a frame 10^12,
 floods its own stream, sends overrides of the wrong type or far outside their range. For each
 attack: the victim's frames keep being processed (every frame sent gets a result or a counted
-drop, latency stays bounded), the attacker gets a documented error, and the service's counters
-say what happened."""
+drop, in order, and its newest frame is answered: it is not locked out), the attacker gets a
+documented error, and the service's counters say what happened. What an attack costs the
+victim in latency is a figure of the machine: benchmarks/hostile.py measures it."""
 
 from __future__ import annotations
 
@@ -17,14 +18,14 @@ import pytest
 
 pytest.importorskip("zenoh")
 
+from arcf.data import data_root
+from arcf.eval import load_dataset
 from arcf.loadtools.driver import Clip, Fleet, Pacing
 from arcf.loadtools.procs import ServiceProcess
+from arcf.loadtools.waiting import wait_until
 from arcf.schemas import ErrorMessage, Frame, KeySpace, decode, encode
 from arcf.service.client import ServiceError, TrackingClient
 from arcf.service.scrape import by_label, fetch
-
-from arcf.data import data_root
-from arcf.eval import load_dataset
 
 pytestmark = [pytest.mark.integration,
               pytest.mark.skipif(not (data_root() / "uav123_10fps").is_dir(),
@@ -61,15 +62,33 @@ class Victim:
                 decode(s.payload.to_bytes(), expected=ErrorMessage)))
         self.fleet = Fleet(client, [clip], preset="bacf", pacing=Pacing.fixed_rate(10.0))
         (self.stream,) = self.fleet.add(names=[name])
-        time.sleep(1.0)  # running before the attack
+        # running before the attack: its first result is in
+        wait_until(lambda: bool(self.stream.record.received), timeout=30,
+                   what=f"{name}'s first result")
+
+    def caught_up(self, timeout: float = 30.0) -> int:
+        """Wait until a frame the victim sent after this call, or a later one, has a result:
+        every frame before it is then answered or counted in a ``dropped``, and anything put
+        on the stream's key before the call has been through the service. Returns that
+        frame's number."""
+        rec, called = self.stream.record, time.monotonic()
+        wait_until(lambda: bool(rec.sent) and rec.sent[-1][1] >= called, timeout=timeout,
+                   what=f"a frame of {rec.name} sent")
+        last = rec.sent[-1][0]
+        wait_until(lambda: bool(rec.received) and rec.received[-1].frame_seq >= last,
+                   timeout=timeout, what=f"a result for frame {last} of {rec.name} or later")
+        return last
 
     def check(self, t0: float) -> dict[str, Any]:
-        """Since ``t0``: every frame answered or reported dropped, latency bounded."""
-        time.sleep(0.5)
+        """Since ``t0``: the victim's newest frame is answered (it was served throughout, not
+        locked out), every frame it sent is answered or reported dropped, in order, nothing
+        it never sent is counted as dropped, and it got no error notice."""
+        self.caught_up()
+        rec = self.stream.record
         window = self.fleet.window(t0, time.monotonic())
-        counts = self.stream.record.accounting()
-        assert window["results"] >= 0.8 * window["offered_fps"] * window["seconds"], window
-        assert window["latency_ms"]["p99"] < 500, window
+        counts = rec.accounting()
+        assert window["results"] > 0 and window["errors"] == 0, window
+        assert window["dropped"] <= len(rec.sent), window  # frames it sent, not phantoms
         assert counts["unaccounted"] == 0 and counts["out_of_order"] == 0, counts
         assert self.notices == [], [n.code for n in self.notices]
         return window
@@ -91,11 +110,15 @@ def test_wildcard_puts_reach_no_stream(service, clip) -> None:
             for key in (KEYS.all_frames(), f"{KEYS.prefix}/**", f"{KEYS.prefix}/streams/**"):
                 client.session.put(key, rogue)
                 client.session.put(key, b"\x00garbage")
-            time.sleep(2.0)
+            wait_until(lambda: errors_by_kind(service).get("invalid_key", 0)
+                       - before.get("invalid_key", 0) >= 6, timeout=30,
+                       what="the six puts refused as invalid_key")
             victim.check(t0)
             after = errors_by_kind(service)
-            assert after.get("invalid_key", 0) - before.get("invalid_key", 0) >= 6
-            assert service.metric("arcf_frames_dropped_total") - dropped_before < 5
+            # what was dropped meanwhile is the victim's own frames (a slow machine's queue),
+            # never the 10^12 frames a rogue number would count as lost
+            assert service.metric("arcf_frames_dropped_total") - dropped_before <= \
+                victim.stream.sent
             for kind in ("malformed_message", "stale_frame", "sequence_jump"):
                 assert after.get(kind, 0) == before.get(kind, 0), kind
         finally:
@@ -107,22 +130,29 @@ def test_a_rogue_frame_number_on_the_streams_own_key_cannot_lock_it_out(service,
         victim = Victim(client, clip, "victim-seq")
         try:
             dropped_before = service.metric("arcf_frames_dropped_total")
+            jumps_before = errors_by_kind(service).get("sequence_jump", 0)
             t0 = time.monotonic()
             for seq in (10**12, 10**12 + 1):  # two in a row: still not enough to take over
                 client.session.put(KEYS.frames("victim-seq"), encode(Frame(
                     stream_id="victim-seq", seq=seq, capture_ts_ns=1, encoding="jpeg",
                     payload=clip.frames[0])))
-            time.sleep(2.0)
+            wait_until(lambda: errors_by_kind(service).get("sequence_jump", 0) > jumps_before,
+                       timeout=30, what="the rogue frames refused as sequence_jump")
+            victim.caught_up()  # its frames after the rogue ones are through as well
             victim.notices = [n for n in victim.notices if n.code.value != "sequence_jump"]
             window = victim.check(t0)
-            assert window["dropped"] == 0
-            assert service.metric("arcf_frames_dropped_total") - dropped_before < 5
+            # the victim's numbering held: no gap of 10^12 frames counted as lost, only (on a
+            # slow machine) some of the frames it did send
+            assert window["dropped"] <= victim.stream.sent
+            assert service.metric("arcf_frames_dropped_total") - dropped_before <= \
+                victim.stream.sent
             # a negative number is not a frame at all
             raw = msgpack.unpackb(encode(Frame(stream_id="victim-seq", seq=1, capture_ts_ns=1,
                                                encoding="jpeg", payload=b"x")), raw=False)
             raw["seq"] = -5
             client.session.put(KEYS.frames("victim-seq"), msgpack.packb(raw))
-            time.sleep(1.0)
+            wait_until(lambda: bool(victim.notices), timeout=30, what="a notice to the victim")
+            victim.caught_up()  # nothing else came of it
             assert [n.code.value for n in victim.notices] == ["invalid_request"]
             victim.notices.clear()
             victim.check(t0)
@@ -136,23 +166,44 @@ def test_a_flood_is_refused_at_intake_and_reported(service, clip) -> None:
         notices: list[ErrorMessage] = []
         sub = client.session.declare_subscriber(KEYS.errors("flooder"), lambda s: notices.append(
             decode(s.payload.to_bytes(), expected=ErrorMessage)))
+        answers: list[Any] = []
+        results = client.results("flooder", callback=answers.append)
         flooder = client.start("flooder", clip.box, preset="bacf", frame_seq=0)
         try:
             before = errors_by_kind(service)
+
+            def refused() -> float:
+                return errors_by_kind(service).get("rate_limited", 0) - before.get(
+                    "rate_limited", 0)
+
             t0 = time.monotonic()
-            for i in range(300):  # ~1000 frames/s for 0.3 s against a limit of 30/s
+            for i in range(300):  # the stimulus: up to ~1000 frames/s against a limit of 30/s
                 client.publish_frame("flooder", data=clip.frames[i % len(clip)], seq=i)
                 time.sleep(0.001)
-            time.sleep(1.5)
+            # then a 5 fps camera on the same key until one of its frames is answered: frames
+            # of one key pass the intake in order, so the whole flood has been through it
+            seq, deadline = 300, time.monotonic() + 60
+            while not any(r.frame_seq >= 300 and r.status.value not in ("stopped", "stale")
+                          for r in list(answers)):
+                assert time.monotonic() < deadline, "no frame after the flood answered in 60 s"
+                client.publish_frame("flooder", data=clip.frames[seq % len(clip)], seq=seq)
+                seq += 1
+                time.sleep(0.2)  # the stimulus: 5 fps, within the limit
+            t1 = time.monotonic()
             victim.check(t0)
-            refused = errors_by_kind(service).get("rate_limited", 0) - before.get(
-                "rate_limited", 0)
-            assert refused >= 200  # the excess, counted one by one at intake
-            assert "rate_limited" in [n.code.value for n in notices]
-            assert any(f"{int(refused)} frame" in n.message or "frame(s) refused" in n.message
+            # the bucket lets through one second's worth plus 30/s while the flood arrived
+            # (between t0 and t1 at most, however slowly this machine sent or received it);
+            # everything beyond is refused, counted one by one at intake (of the refusals,
+            # seq - 300 at most can be frames of the 5 fps camera)
+            allowed = 30 * (1 + (t1 - t0))
+            assert refused() - (seq - 300) >= 300 - allowed, (refused(), seq, t1 - t0)
+            wait_until(lambda: "rate_limited" in [n.code.value for n in notices], timeout=10,
+                       what="the flooder's rate_limited notice")
+            assert any(f"{int(refused())} frame" in n.message or "frame(s) refused" in n.message
                        for n in notices)
         finally:
             client.stop(flooder.session_id)
+            results.close()
             sub.undeclare()
             victim.close()
 
@@ -194,14 +245,12 @@ class Watcher:
         self.sub = client.results(stream, callback=self.results.append)
 
     def wait_for(self, status: str, timeout: float) -> Any:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            hit = [r for r in self.results if r.status.value == status]
-            if hit:
-                return hit[0]
-            time.sleep(0.05)
-        raise AssertionError(f"no {status} result within {timeout} s: "
-                             f"{[(r.frame_seq, r.status.value) for r in self.results]}")
+        def hits() -> list[Any]:
+            return [r for r in self.results if r.status.value == status]
+
+        wait_until(lambda: bool(hits()), timeout=timeout, what=f"a {status} result (so far: "
+                   f"{[(r.frame_seq, r.status.value) for r in self.results]})")
+        return hits()[0]
 
 
 class Frames:
@@ -212,12 +261,14 @@ class Frames:
         self.client, self.clip, self.stream, self.seq = client, clip, stream, 0
 
     def run(self, seconds: float, until: Any = None) -> None:
+        """Publish for ``seconds`` (the stimulus: a stream that stays busy), or until
+        ``until()`` holds (then ``seconds`` is a generous deadline, not a figure)."""
         deadline = time.monotonic() + seconds
         while time.monotonic() < deadline and not (until and until()):
             self.client.publish_frame(self.stream, seq=self.seq,
                                       data=self.clip.frames[self.seq % len(self.clip)])
             self.seq += 1
-            time.sleep(0.1)
+            time.sleep(0.1)  # the stimulus: a 10 fps camera
 
 
 def test_a_quiet_stream_ends_its_sessions_saying_why(strict, clip) -> None:
@@ -226,13 +277,14 @@ def test_a_quiet_stream_ends_its_sessions_saying_why(strict, clip) -> None:
         ack = client.start("quiet", clip.box, preset="bacf", frame_seq=0)
         for i in range(3):
             client.publish_frame("quiet", data=clip.frames[i], seq=i)
-            time.sleep(0.1)
+            time.sleep(0.1)  # the stimulus: three frames of a 10 fps camera, then quiet
+        t_quiet = time.monotonic()  # after the last frame was published
         status = client.status(stream_id="quiet")
         (info,) = status.sessions
         assert info.session_id == ack.session_id and info.client_id == client.client_id
-        t0 = time.monotonic()
-        stopped = watch.wait_for("stopped", timeout=6)
-        assert 1.5 < time.monotonic() - t0 < 5
+        stopped = watch.wait_for("stopped", timeout=30)
+        # not before its idle limit (2 s) from its last frame; how much later is the machine's
+        assert time.monotonic() - t_quiet >= 2.0
         assert stopped.code.value == "session_expired" and "no frame" in stopped.message
         assert client.status(stream_id="quiet").sessions == []
         assert errors_by_kind(strict)["session_expired"] >= 1
@@ -263,12 +315,13 @@ def test_sessions_of_a_vanished_station_end_and_free_their_places(strict, clip) 
             station.kill()
             station.wait(timeout=10)
             # frames keep flowing, so that the station's absence ends the session, not idling
-            frames.run(15, until=lambda: any(r.status.value == "stopped"
+            frames.run(60, until=lambda: any(r.status.value == "stopped"
                                              for r in watch.results))  # lease + grace
             stopped = watch.wait_for("stopped", timeout=1)
             assert stopped.code.value == "session_expired" and "station" in stopped.message
-            time.sleep(0.5)
-            assert [s for s in client.status().sessions if s.stream_id.startswith("flood")] == []
+            wait_until(lambda: [s for s in client.status().sessions
+                                if s.stream_id.startswith("flood")] == [], timeout=30,
+                       what="the vanished station's four sessions ended")
             ack = client.start("legit", clip.box, preset="bacf")
             client.stop(ack.session_id)
     finally:
@@ -278,12 +331,13 @@ def test_sessions_of_a_vanished_station_end_and_free_their_places(strict, clip) 
 
 def test_a_station_that_reconnects_within_the_grace_keeps_its_sessions(strict, clip) -> None:
     with TrackingClient(connect=[strict.endpoint]) as observer:
+        frames = Frames(observer, clip, "keep")  # busy: the idle limit (2 s) stays out of it
         first = TrackingClient(connect=[strict.endpoint], client_id="station-7")
-        ack = first.start("keep", clip.box, preset="bacf")
+        ack = first.start("keep", clip.box, preset="bacf", frame_seq=0)
         first.close()  # token gone...
         again = TrackingClient(connect=[strict.endpoint], client_id="station-7")  # ...and back
         try:
-            time.sleep(1.6)  # past the grace (1 s), before the idle limit (2 s)
+            frames.run(2.5)  # the stimulus: past the grace (1 s), checked once a second
             assert [s.session_id for s in observer.status(stream_id="keep").sessions] == [
                 ack.session_id]
         finally:
@@ -309,7 +363,7 @@ def test_a_restarted_station_adopts_the_sessions_it_left_behind(strict, clip) ->
         finally:
             second.close()
         # the adopting station is gone in turn: the session follows its token now
-        frames.run(8, until=lambda: any(r.status.value == "stopped" for r in watch.results))
+        frames.run(60, until=lambda: any(r.status.value == "stopped" for r in watch.results))
         stopped = watch.wait_for("stopped", timeout=1)
         assert stopped.code.value == "session_expired" and second.client_id in stopped.message
         with pytest.raises(ValueError, match="tie_sessions"):
@@ -326,11 +380,10 @@ def test_a_station_token_never_seen_has_the_grace_to_appear(strict, clip) -> Non
                              preset="bacf", frame_seq=0, client_id="no-such-station")
         (reply,) = list(client.session.get(KEYS.control(), payload=encode(start), timeout=5))
         decode(reply.ok.payload.to_bytes(), expected=Ack)
-        t0 = time.monotonic()
-        frames.run(8, until=lambda: any(r.status.value == "stopped" for r in watch.results))
+        frames.run(60, until=lambda: any(r.status.value == "stopped" for r in watch.results))
         stopped = watch.wait_for("stopped", timeout=1)
+        # the token's grace ended it (the message names the station), not the idle rule
         assert stopped.code.value == "session_expired" and "no-such-station" in stopped.message
-        assert time.monotonic() - t0 < 4  # grace (1 s) + one check (1 s), not the idle rule
         assert frames.seq > 5  # the frames kept flowing meanwhile: not an idle end
 
 
@@ -339,35 +392,48 @@ def test_a_box_outside_its_frame_ends_the_session_visibly(strict, clip) -> None:
         watch = Watcher(client, "outside")
         client.start("outside", (5000.0, 5000.0, 20.0, 20.0), preset="bacf", frame_seq=0)
         client.publish_frame("outside", data=clip.frames[0], seq=0)
-        stopped = watch.wait_for("stopped", timeout=10)
+        stopped = watch.wait_for("stopped", timeout=30)
         (error,) = [r for r in watch.results if r.status.value == "error"]
         assert error.code.value == "invalid_box" and error.frame_seq == 0
         assert stopped.code.value == "invalid_box" and "does not fit frame 0" in stopped.message
         assert client.status(stream_id="outside").sessions == []
 
 
-def test_frame_seq_in_the_past_present_and_future(strict, clip) -> None:
-    with TrackingClient(connect=[strict.endpoint]) as client:
+def test_frame_seq_in_the_past_present_and_future(service, clip) -> None:
+    # (the module's lenient service: its sessions do not idle out while the test waits)
+    with TrackingClient(connect=[service.endpoint]) as client:
         watch = Watcher(client, "seqs")
         first = client.start("seqs", clip.box, preset="bacf", frame_seq=0)
+
+        def answered(session_id: str, seq: int) -> bool:
+            return any(r.session_id == session_id and r.frame_seq >= seq
+                       and r.status.value not in ("stopped", "stale") for r in watch.results)
+
         for i in range(5):
             client.publish_frame("seqs", data=clip.frames[i], seq=i)
-            time.sleep(0.05)
-        time.sleep(0.5)
+            time.sleep(0.05)  # the stimulus: a 20 fps camera
+        wait_until(lambda: answered(first.session_id, 4), timeout=30, what="frame 4 tracked")
         with pytest.raises(ServiceError) as far:  # beyond max_seq_gap: it may never come
             client.start("seqs", clip.box, preset="bacf", frame_seq=10**6)
         assert far.value.code == "invalid_request" and "frame_seq" in str(far.value)
         later = client.start("seqs", clip.box, preset="bacf", frame_seq=8)  # waits for 8
         past = client.start("seqs", clip.box, preset="bacf", frame_seq=2)  # drawn on frame 2
-        time.sleep(1.2)  # the workers report once a second
-        states = {s.session_id: s for s in client.status(stream_id="seqs").sessions}
-        assert states[later.session_id].state == "waiting"
-        assert states[first.session_id].state == "tracking"
-        assert states[first.session_id].frames == 5 and states[first.session_id].last_seq == 4
+
+        def states() -> dict[str, Any]:
+            return {s.session_id: s for s in client.status(stream_id="seqs").sessions}
+
+        # the workers report once a second: until the first session's five frames are in it
+        wait_until(lambda: states()[first.session_id].frames == 5, timeout=30,
+                   what="the workers' report of the first session's frames")
+        now = states()
+        assert now[later.session_id].state == "waiting"
+        assert now[first.session_id].state == "tracking"
+        assert now[first.session_id].frames == 5 and now[first.session_id].last_seq == 4
         for i in range(5, 10):
             client.publish_frame("seqs", data=clip.frames[i], seq=i)
-            time.sleep(0.05)
-        time.sleep(0.5)
+            time.sleep(0.05)  # the stimulus: a 20 fps camera
+        wait_until(lambda: answered(first.session_id, 9) and answered(later.session_id, 9)
+                   and answered(past.session_id, 9), timeout=30, what="frame 9 tracked")
         # (their stream was quiet over a second meanwhile: stale notices, not about frames)
         mine = {sid: [r for r in watch.results if r.session_id == sid
                       and r.status.value != "stale"]
@@ -379,10 +445,8 @@ def test_frame_seq_in_the_past_present_and_future(strict, clip) -> None:
         for sid in (first.session_id, later.session_id, past.session_id):
             client.stop(sid)
         # a station's stop ends the session's results with a last `stopped`, without a code
-        deadline = time.monotonic() + 5
-        while len([r for r in watch.results if r.status.value == "stopped"]) < 3:
-            assert time.monotonic() < deadline, "a stopped session's last result is missing"
-            time.sleep(0.05)
+        wait_until(lambda: len([r for r in watch.results if r.status.value == "stopped"]) >= 3,
+                   timeout=30, what="each stopped session's last result")
         ends = [r for r in watch.results if r.status.value == "stopped"]
         assert {r.session_id for r in ends} == {first.session_id, later.session_id,
                                                 past.session_id}
@@ -398,8 +462,8 @@ def test_a_session_over_its_budget_ends_and_says_so(clip) -> None:
             client.start("heavy", clip.box, preset="arcf-hc", frame_seq=0)
             for i in range(10):
                 client.publish_frame("heavy", data=clip.frames[i], seq=i)
-                time.sleep(0.1)
-            stopped = watch.wait_for("stopped", timeout=10)
+                time.sleep(0.1)  # the stimulus: a 10 fps camera
+            stopped = watch.wait_for("stopped", timeout=30)
             assert stopped.code.value == "limit_exceeded" and "budget" in stopped.message
             # a frame over 4x the budget ends it at once; a mean over it after 5 frames
             assert 1 <= len([r for r in watch.results
@@ -429,7 +493,8 @@ def test_oversized_frames_are_refused_where_they_can_be_seen(service, clip) -> N
                     stream_id="victim-big", seq=seq, capture_ts_ns=1, encoding="jpeg",
                     payload=os.urandom(mib << 20))),
                     congestion_control=zenoh.CongestionControl.BLOCK)
-                time.sleep(1.0)
+            wait_until(lambda: bool(victim.notices), timeout=30, what="a notice to the victim")
+            victim.caught_up()  # the victim's frames sent after both are through
             assert errors_by_kind(service)["oversized_payload"] == before + 1
             assert [n.code.value for n in victim.notices] == ["oversized_payload"]
             victim.notices.clear()

@@ -4,6 +4,7 @@ single frame can take over."""
 from __future__ import annotations
 
 import pytest
+
 from arcf.service.intake import Numbering, TokenBucket
 
 

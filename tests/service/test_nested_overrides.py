@@ -17,10 +17,9 @@ import pytest
 pytest.importorskip("zenoh")
 
 from arcf.loadtools.procs import ServiceProcess
+from arcf.presets import PRESETS
 from arcf.schemas import Result
 from arcf.service.client import ServiceError, TrackingClient
-
-from arcf.presets import PRESETS
 
 pytestmark = pytest.mark.integration
 

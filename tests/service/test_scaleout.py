@@ -3,6 +3,8 @@
 Streams spread over all three; a SIGKILLed instance's streams are resumed by the survivors from
 their last published box, and no other stream notices; a fourth instance takes over its share
 without interrupting the rest; a frozen instance (SIGSTOP) is found out by the Zenoh lease.
+
+The waits have generous deadlines; how long a failover takes is benchmarks/scaleout.py's figure.
 """
 
 from __future__ import annotations
@@ -16,13 +18,14 @@ import pytest
 
 pytest.importorskip("zenoh")
 
-from arcf.loadtools.driver import Clip, failover_fleet
-from arcf.loadtools.procs import RouterProcess, ServiceProcess, start_instances
-from arcf.service.client import TrackingClient
-from arcf.service.cluster import owner
-
 from arcf.data import data_root
 from arcf.eval import load_dataset
+from arcf.loadtools.driver import Clip, failover_fleet
+from arcf.loadtools.ledger import Ledger
+from arcf.loadtools.procs import RouterProcess, ServiceProcess, start_instances
+from arcf.loadtools.waiting import wait_until
+from arcf.service.client import TrackingClient
+from arcf.service.cluster import owner
 
 pytestmark = [pytest.mark.integration,
               pytest.mark.skipif(not (data_root() / "uav123_10fps").is_dir(),
@@ -31,6 +34,26 @@ pytestmark = [pytest.mark.integration,
 FPS = 5.0
 LEASE_S = 1.5
 IDS = ["inst-a", "inst-b", "inst-c"]
+#: a deadline to wait for a failover or a rebalancing, far above what either takes (the lease,
+#: a few round trips); not a figure of the machine
+DEADLINE_S = 60.0
+
+
+def results_after(ledger: Ledger, names: list[str], t: float, n: int = 1) -> None:
+    """Wait until every stream of ``names`` has ``n`` results that arrived after ``t``."""
+    def ok() -> bool:
+        return all(sum(r.t > t for r in list(ledger[name].received)) >= n for name in names)
+
+    wait_until(ok, timeout=DEADLINE_S, what=f"{n} result(s) of each of {names} after {t:.1f}")
+
+
+def unnoticed(ledger: Ledger, name: str, since: float) -> None:
+    """Stream ``name`` went on as it was: not resumed elsewhere since ``since``, and every
+    frame answered or counted as dropped, in order (a frame a stalled machine's queue sheds is
+    counted; one lost in a move is not)."""
+    assert ledger[name].first_with_status("resumed", since) is None, name
+    counts = ledger[name].accounting()
+    assert counts["unaccounted"] == 0 and counts["out_of_order"] == 0, (name, counts)
 
 
 def pick_streams() -> list[str]:
@@ -61,13 +84,14 @@ def test_instances_share_streams_fail_over_and_rebalance() -> None:
         fleet = failover_fleet(client, Clip.of(seq), streams, preset="bacf", fps=FPS,
                                frames=600)
         ledger = fleet.ledger
-        time.sleep(4.0)
+        results_after(ledger, streams, 0.0)
 
         # 1. spread: every stream tracked, two sessions on each instance
         for name in streams:
             assert ledger[name].received, f"no results for {name}"
         for i, svc in instances.items():
-            assert svc.metric("arcf_active_sessions") == 2, i
+            wait_until(lambda svc=svc: svc.metric("arcf_active_sessions") == 2, timeout=30,
+                       what=f"two active sessions on {i}")
         assert len(client.status().sessions) == 6  # any instance answers for all
 
         # 2. failover: SIGKILL inst-b; its streams resume elsewhere, the others never notice
@@ -76,21 +100,23 @@ def test_instances_share_streams_fail_over_and_rebalance() -> None:
         t_kill = time.monotonic()
         instances["inst-b"].proc.send_signal(signal.SIGKILL)
         instances["inst-b"].proc.wait(timeout=10)
-        resumed_at = ledger.first_resumed(victim, t_kill, timeout=10)
+        resumed_at = ledger.first_resumed(victim, t_kill, timeout=DEADLINE_S)
         assert sorted(resumed_at) == sorted(victim), "streams of the killed instance not resumed"
-        failover_s = max(resumed_at.values()) - t_kill
-        assert failover_s < 5.0
-        time.sleep(2.0)
+        failover_s = max(resumed_at.values()) - t_kill  # reported, not asserted
+        for n in victim:  # five results from the new owner...
+            results_after(ledger, [n], resumed_at[n], n=5)
+        results_after(ledger, others, max(resumed_at.values()))  # ...and the others go on
         for n in others:
-            assert ledger[n].gaps(t_kill - 1.0, time.monotonic()) == 0, n
-            assert ledger[n].first_with_status("resumed", 0.0) is None, n
+            unnoticed(ledger, n, 0.0)
         for n in victim:  # resumed from the last box, and tracking since
             after = [r for r in ledger[n].received if r.t > resumed_at[n]]
             assert len(after) >= 5 and all(r.status == "tracking" for r in after[1:])
         survivors = [i for i in IDS if i != "inst-b"]
+        wait_until(lambda: sum(instances[i].metric("arcf_active_sessions")
+                               for i in survivors) == 6, timeout=30,
+                   what="the six sessions active on the survivors")
         assert sum(instances[i].metric("arcf_sessions_taken_over_total")
                    for i in survivors) == len(victim)
-        assert sum(instances[i].metric("arcf_active_sessions") for i in survivors) == 6
         # 3. a fourth instance takes over its share; the rest run on untouched
         t_join = time.monotonic()
         newcomer = ServiceProcess("--instance-id", "inst-d", *extra, connect=router.endpoint,
@@ -99,14 +125,13 @@ def test_instances_share_streams_fail_over_and_rebalance() -> None:
         moving = [n for n in streams if owner(n, live) == "inst-d"]
         staying = [n for n in streams if n not in moving]
         assert moving
-        assert set(ledger.first_resumed(moving, t_join, timeout=10)) == set(moving)
-        time.sleep(2.0)
-        assert newcomer.metric("arcf_active_sessions") == len(moving)
+        joined = ledger.first_resumed(moving, t_join, timeout=DEADLINE_S)
+        assert set(joined) == set(moving)
+        wait_until(lambda: newcomer.metric("arcf_active_sessions") == len(moving), timeout=30,
+                   what="the moved sessions active on the newcomer")
+        results_after(ledger, streams, max(joined.values()), n=3)  # every session goes on
         for n in staying:
-            assert ledger[n].gaps(t_join, time.monotonic()) == 0, n
-            assert ledger[n].first_with_status("resumed", t_join) is None, n
-        for n in streams:  # every session keeps producing results
-            assert any(r.t > time.monotonic() - 1.0 for r in ledger[n].received), n
+            unnoticed(ledger, n, t_join)
 
         # 4. a hung instance (all its processes frozen) is detected by the Zenoh lease
         frozen = max(live, key=lambda i: sum(owner(n, live) == i for n in streams))
@@ -117,10 +142,11 @@ def test_instances_share_streams_fail_over_and_rebalance() -> None:
         for pid in pids:
             os.kill(pid, signal.SIGSTOP)
         try:
-            taken = ledger.first_resumed(stuck, t_stop, timeout=LEASE_S + 8)
+            taken = ledger.first_resumed(stuck, t_stop, timeout=DEADLINE_S)
             hang_s = time.monotonic() - t_stop
             assert set(taken) == set(stuck)
-            assert hang_s >= LEASE_S * 0.5  # not before the lease could expire
+            # not before the lease could expire (a lower bound: a slow machine is only later)
+            assert hang_s >= LEASE_S * 0.5
         finally:
             for pid in pids:
                 os.kill(pid, signal.SIGKILL)
@@ -159,8 +185,9 @@ def test_a_vanished_stations_grace_outlives_the_instance_running_its_session() -
         station.start(stream, clip.box, preset="bacf", frame_seq=0)
         t0 = time.monotonic()
         seq, killed_at = 0, None
-        # frames keep coming (from the observer): nothing here idles; bounded to 25 s
-        while time.monotonic() - t0 < 25 and not any(r.status == "stopped" for r in results):
+        # frames keep coming (from the observer): nothing here idles (the idle limit is 60 s,
+        # and the session produces results); a deadline of 50 s for the grace (3 s) to end it
+        while time.monotonic() - t0 < 50 and not any(r.status == "stopped" for r in results):
             observer.publish_frame(stream, data=clip.frames[seq % len(clip)], seq=seq)
             seq += 1
             if seq == 10:
@@ -169,13 +196,14 @@ def test_a_vanished_stations_grace_outlives_the_instance_running_its_session() -
                 instances["grace-a"].proc.send_signal(signal.SIGKILL)
                 instances["grace-a"].proc.wait(timeout=10)
                 killed_at = time.monotonic()
-            time.sleep(0.1)
+            time.sleep(0.1)  # the stimulus: a 10 fps camera
         sub.close()
         statuses = [r.status.value for r in results]
         assert "resumed" in statuses, statuses  # the survivor took the session over...
         (stopped,) = [r for r in results if r.status == "stopped"]  # ...and ended it
         assert stopped.code == "session_expired" and station.client_id in stopped.message
-        assert killed_at is not None and time.monotonic() - killed_at < 12  # lease + grace
+        # by the station's absence, after the instance died (not by idling: frames flowed)
+        assert killed_at is not None and statuses.index("resumed") < statuses.index("stopped")
     finally:
         observer.close()
         for svc in instances.values():

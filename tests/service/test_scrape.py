@@ -8,6 +8,7 @@ import threading
 from collections.abc import Iterator
 
 import pytest
+
 from arcf.service.health import check
 from arcf.service.scrape import scrape, series, totals
 

@@ -19,15 +19,16 @@ pytest.importorskip("zenoh")
 import itertools
 from collections.abc import Sequence
 
-from arcf.loadtools.driver import Clip, Fleet, Pacing
-from arcf.loadtools.procs import ServiceProcess as _Service
-from arcf.schemas import KeySpace
-from arcf.service.client import ServiceError, TrackingClient
-from arcf.service.decoding import decode_compressed
-
 import arcf
 from arcf.data import data_root
 from arcf.eval import load_dataset
+from arcf.loadtools.driver import Clip, Fleet, Pacing
+from arcf.loadtools.procs import ServiceProcess as _Service
+from arcf.loadtools.waiting import wait_until
+from arcf.schemas import KeySpace
+from arcf.service.client import ServiceError, TrackingClient
+from arcf.service.decoding import decode_compressed
+from arcf.service.settings import ServiceSettings
 
 pytestmark = [pytest.mark.integration,
               pytest.mark.skipif(not (data_root() / "uav123_10fps").is_dir(),
@@ -164,6 +165,7 @@ def test_control_errors_are_clear(service) -> None:
             client.start("s", (10, 10, 0, 20), preset="arcf-h")
         # ... and the service refuses it too when a client sends it anyway
         import msgpack
+
         from arcf.schemas import ErrorMessage, decode
 
         for box, code in (([10, 10, 0, 20], "invalid_box"), ([1, 2, float("nan"), 4],
@@ -209,8 +211,8 @@ def test_bad_input_is_counted_and_the_session_goes_on(service, frames) -> None:
     assert statuses[1] == "error"  # the undecodable frame, reported to the session
     assert all(statuses[i] == "tracking" for i in range(3, 8))  # and tracking went on
     assert len(errors) >= 3
-    time.sleep(0.5)
-    assert service.metric("arcf_errors_total") >= errors_before + 4
+    wait_until(lambda: service.metric("arcf_errors_total") >= errors_before + 4, timeout=30,
+               what="four errors counted")
 
 
 def test_metrics_count_what_was_sent(service, frames) -> None:
@@ -220,8 +222,11 @@ def test_metrics_count_what_was_sent(service, frames) -> None:
     with TrackingClient(connect=[service.endpoint], frame_congestion="block") as client, \
             _lockstep(client, {"count": (_clip(seq, data[:10]), ["bacf"])}) as fleet:
         got = _got(fleet, "count")
-    time.sleep(0.5)
     assert len(got) == 10
+    wait_until(lambda: service.metric("arcf_results_published_total") - before_results >= 10
+               and service.metric("arcf_frames_processed_total") - before_frames >= 10
+               and service.metric("arcf_end_to_end_latency_seconds_count") >= 10, timeout=30,
+               what="the ten frames counted")
     assert service.metric("arcf_results_published_total") - before_results == 10
     assert service.metric("arcf_frames_processed_total") - before_frames == 10
     assert service.metric("arcf_end_to_end_latency_seconds_count") >= 10
@@ -279,10 +284,13 @@ def test_wrong_schema_version_is_counted(service) -> None:
         client.session.put(keys.frames("version"), msgpack.packb(
             {"v": 2, "type": "frame", "stream_id": "version", "seq": 0, "capture_ts_ns": 1,
              "encoding": "jpeg", "payload": b"x"}, use_bin_type=True))
-        time.sleep(0.5)
+
+        def metrics() -> str:
+            return urllib.request.urlopen(service.metrics_url, timeout=5).read().decode()
+
+        wait_until(lambda: 'arcf_errors_total{kind="unsupported_version"}' in metrics(),
+                   timeout=30, what="the version-2 frame counted as unsupported_version")
         client.stop(ack.session_id)
-    text = urllib.request.urlopen(service.metrics_url, timeout=5).read().decode()
-    assert 'arcf_errors_total{kind="unsupported_version"}' in text
     assert service.metric("arcf_errors_total") >= before + 1
 
 
@@ -301,12 +309,10 @@ def test_a_killed_worker_is_replaced_and_its_sessions_resume(frames) -> None:
             first = _clip(seq, data[:3])
             _lockstep(client, {s0: (first, ["bacf"]), s1: (first, ["bacf"])})
             for r in (r0, r1):  # the same results, queued here for the steps below
-                assert [x.frame_seq for x in _collect(r, 3, timeout=5)] == [0, 1, 2]
+                assert [x.frame_seq for x in _collect(r, 3, timeout=30)] == [0, 1, 2]
             victim = sorted(svc.workers)[0]
             os.kill(victim, signal.SIGKILL)
-            deadline = time.monotonic() + 15
-            while not notices and time.monotonic() < deadline:
-                time.sleep(0.1)
+            wait_until(lambda: bool(notices), timeout=60, what="a notice about the lost worker")
             assert len(notices) == 1  # exactly one stream was on the killed worker
             dead_stream = s0 if notices[0] == keys.errors(s0) else s1
             alive_stream, alive_results = (s1, r1) if dead_stream == s0 else (s0, r0)
@@ -319,16 +325,19 @@ def test_a_killed_worker_is_replaced_and_its_sessions_resume(frames) -> None:
             # the lost session resumes on a live worker from its last box (frame 2's)
             resumed = None
             i = 3
-            deadline = time.monotonic() + 30
-            while resumed is None and time.monotonic() < deadline and i < len(data):
-                client.publish_frame(dead_stream, data=data[i], seq=i)
-                for r in _collect(dead_results, 1, timeout=0.5):
+            # a deadline, not a figure: the session may land on the replacement worker, which
+            # may take the service's own start-up allowance to be ready (compiling its kernels
+            # where no cache exists, on a loaded machine)
+            deadline = time.monotonic() + ServiceSettings().worker_start_s + 30
+            while resumed is None and time.monotonic() < deadline:
+                client.publish_frame(dead_stream, data=data[i % len(data)], seq=i)
+                for r in _collect(dead_results, 1, timeout=0.5):  # the stimulus's pace
                     if r.status == "resumed":
                         resumed = r
                 i += 1
             assert resumed is not None and resumed.frame_seq >= 3
             assert resumed.dropped == resumed.frame_seq - 3  # frames before it, counted
-            client.publish_frame(dead_stream, data=data[i], seq=i)
+            client.publish_frame(dead_stream, data=data[i % len(data)], seq=i)
             (after,) = _collect(dead_results, 1, timeout=30)
             assert after.status == "tracking" and after.frame_seq == i
             for s in subs:
@@ -356,15 +365,13 @@ def test_reinit_numpy_frames_and_callbacks(service, frames) -> None:
             if i == 4:
                 client.reinit(ack.session_id, new_box, frame_seq=4)
             client.publish_frame("raw", image, encoding="bgr8", seq=i)
-            deadline = time.monotonic() + 10
-            while not any(r.frame_seq == i and r.track_state for r in list(received)) \
-                    and time.monotonic() < deadline:
-                time.sleep(0.01)
+            wait_until(lambda i=i: any(r.frame_seq == i and r.track_state
+                                       for r in list(received)), timeout=30,
+                       what=f"frame {i} tracked")
         client.stop(ack.session_id)
-        deadline = time.monotonic() + 10  # the session's last result: it stopped
-        while not any(r.status == "stopped" for r in list(received)) \
-                and time.monotonic() < deadline:
-            time.sleep(0.01)
+        # the session's last result: it stopped
+        wait_until(lambda: any(r.status == "stopped" for r in list(received)), timeout=30,
+                   what="the session's stopped result")
         sub.close()
     *received, last = [r for r in received if r.status != "stale"]  # about frames, and the end
     assert str(getattr(last.status, "value", last.status)) == "stopped"
@@ -387,10 +394,15 @@ def test_signals_stop_everything(sig) -> None:
     assert len(workers) == 2
     svc.proc.send_signal(sig)
     assert svc.proc.wait(timeout=30) == 0
-    time.sleep(0.5)
-    for pid in workers:
-        assert not Path(f"/proc/{pid}").exists() or "zombie" in Path(
-            f"/proc/{pid}/status").read_text().lower()
+
+    def gone(pid: int) -> bool:
+        try:
+            return "zombie" in Path(f"/proc/{pid}/status").read_text().lower()
+        except FileNotFoundError:
+            return True
+
+    wait_until(lambda: all(gone(pid) for pid in workers), timeout=30,
+               what=f"workers {workers} ended")
 
 
 def test_limits_stale_frames_and_bombs_are_refused_counted_and_harmless(frames, png_bomb) -> None:
@@ -413,7 +425,7 @@ def test_limits_stale_frames_and_bombs_are_refused_counted_and_harmless(frames, 
             assert "max_sessions" in str(refused.value)
             client.publish_frame("lim", data=data[0], seq=0)
             assert [r.status for r in _collect(results, 1, timeout=30)] == ["initialized"]
-            time.sleep(1.0)  # refill the rate budget
+            time.sleep(1.0)  # the stimulus: the rate budget refills
             # a decompression bomb: refused from its header, an error result, no decoding
             client.publish_frame("lim", data=png_bomb(4000, 4000), encoding="png", seq=1)
             (bomb,) = _collect(results, 1, timeout=30)
@@ -422,23 +434,41 @@ def test_limits_stale_frames_and_bombs_are_refused_counted_and_harmless(frames, 
             # a duplicate and an out-of-order frame: refused, not tracked
             client.publish_frame("lim", data=data[1], seq=1)
             client.publish_frame("lim", data=data[0], seq=0)
-            time.sleep(1.0)
+            time.sleep(1.0)  # the stimulus: the rate budget refills
             client.publish_frame("lim", data=data[2], seq=2)
             (ok,) = _collect(results, 1, timeout=30)
             assert ok.frame_seq == 2 and ok.status == "tracking"
             # a flood above max_stream_fps: the excess is refused, and tracking goes on
-            time.sleep(1.5)
+            time.sleep(1.5)  # the stimulus: the rate budget refills to a whole second's (4)
+            t_flood = time.monotonic()
             for i in range(3, 23):
                 client.publish_frame("lim", data=data[i], seq=i)
-                time.sleep(0.01)
-            got = _collect(results, 20, timeout=5)
-            assert 1 <= len(got) <= 8  # within one second's budget (4) and its refill
+                time.sleep(0.01)  # the stimulus: 20 frames at up to 100 frames/s
+            sent_s = time.monotonic() - t_flood
+            # then one frame every 0.5 s (within the limit) until one is answered: frames of a
+            # stream pass the intake in order and results come in order, so every answer to
+            # the flood is in by then
+            got, seq_next, deadline = [], 23, time.monotonic() + 60
+            while not any(r.frame_seq >= 23 for r in got):
+                assert time.monotonic() < deadline, "no frame after the flood answered in 60 s"
+                client.publish_frame("lim", data=data[seq_next % len(data)], seq=seq_next)
+                seq_next += 1
+                got += _collect(results, 1, timeout=0.5)  # the stimulus's pace
+            markers = seq_next - 23
+            got = [r for r in got if r.frame_seq < 23]
+            # within one second's budget (4) and its refill while the flood arrived (as long
+            # as it took to send, plus a second of delivery on a slow machine)
+            assert 1 <= len(got) <= 4 + 4 * (sent_s + 1.0), (len(got), sent_s)
             assert all(r.status == "tracking" for r in got)
-            time.sleep(0.5)
+            codes: list[str] = []
+
+            def noticed() -> bool:
+                codes[:] = [decode_error_code(s) for s in list(errors)]
+                return all(c in codes for c in ("image_too_large", "stale_frame",
+                                                "rate_limited"))
+
+            wait_until(noticed, timeout=30, what=f"the three refusals noticed ({codes})")
             sub.undeclare()
-        codes = [decode_error_code(s) for s in errors]
-        for code in ("image_too_large", "stale_frame", "rate_limited"):
-            assert code in codes, codes
         # each refusal counted under its code: the refused start, two stale frames, the bomb,
         # then the flood's excess, each one of the frames without a result (the others were
         # dropped for the newest, and counted)
@@ -447,7 +477,9 @@ def test_limits_stale_frames_and_bombs_are_refused_counted_and_harmless(frames, 
         kinds = by_label(fetch(svc.metrics_url), "arcf_errors_total", "kind")
         assert kinds["limit_exceeded"] == 1 and kinds["stale_frame"] == 2
         assert kinds["image_too_large"] == 1
-        assert 1 <= kinds["rate_limited"] <= 20 - len(got)
+        # (of the refusals, the frames after the flood account for at most markers - 1)
+        assert kinds["rate_limited"] - (markers - 1) >= 1
+        assert kinds["rate_limited"] <= 20 - len(got) + markers - 1
     finally:
         assert svc.stop() == 0
 
@@ -465,13 +497,10 @@ def test_sigterm_finishes_in_flight_frames_and_sends_final_statuses(frames) -> N
         results = client.results("bye")
         fleet = _lockstep(client, {"bye": (_clip(seq, data[:3]), ["bacf", "arcf-h"])})
         assert len(_got(fleet, "bye")) == 6
-        assert len(_collect(results, 6, timeout=5)) == 6
-        t0 = time.monotonic()
+        assert len(_collect(results, 6, timeout=30)) == 6
         svc.proc.send_signal(signal.SIGTERM)
-        assert svc.proc.wait(timeout=30) == 0
-        stopped_in = time.monotonic() - t0
-        final = _collect(results, 2, timeout=5)
-    assert stopped_in < 10  # bounded
+        assert svc.proc.wait(timeout=60) == 0  # it ends by itself (a deadline, not a figure)
+        final = _collect(results, 2, timeout=30)
     assert len(final) == 2 and {r.status for r in final} == {"stopped"}
     assert all(r.frame_seq == 2 and "shutting down" in (r.message or "") for r in final)
 

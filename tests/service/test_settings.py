@@ -7,6 +7,7 @@ import dataclasses
 from pathlib import Path
 
 import pytest
+
 from arcf.service.app import build_parser
 from arcf.service.health import main as health_main
 from arcf.service.settings import ServiceSettings, add_arguments, from_arguments

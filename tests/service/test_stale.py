@@ -18,11 +18,10 @@ import pytest
 
 pytest.importorskip("zenoh")
 
+from arcf.data import data_root
 from arcf.loadtools.driver import Clip
 from arcf.loadtools.procs import ServiceProcess
 from arcf.service.client import TrackingClient
-
-from arcf.data import data_root
 
 pytestmark = [pytest.mark.integration,
               pytest.mark.skipif(not (data_root() / "uav123_10fps").is_dir(),

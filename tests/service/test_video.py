@@ -8,9 +8,9 @@ import av
 import cv2
 import numpy as np
 import pytest
-from arcf.service.video import Outcome, StreamDecoder, nal_units
 
 from arcf.data import data_root
+from arcf.service.video import Outcome, StreamDecoder, nal_units
 
 SEQ = data_root() / "uav123_10fps" / "data_seq" / "wakeboard7"
 pytestmark = pytest.mark.skipif(not SEQ.is_dir(), reason="needs ../shared/data")

@@ -14,14 +14,14 @@ import pytest
 
 pytest.importorskip("zenoh")
 
+import arcf
 from arcf.loadtools.procs import ServiceProcess
 from arcf.loadtools.video import decode_video, encode_video
+from arcf.loadtools.waiting import wait_until
 from arcf.schemas import ErrorMessage, KeySpace, decode
 from arcf.service.client import TrackingClient
 from arcf.service.decoding import decode_compressed
 from arcf.service.foxglove import compressed_video
-
-import arcf
 
 pytestmark = pytest.mark.integration
 GOP = 10
@@ -174,7 +174,8 @@ def test_a_lost_or_damaged_unit_resynchronises_at_the_next_keyframe(service, cli
     assert all(got[i].status in ("initialized", "tracking") for i in tracked)
     np.testing.assert_allclose([got[i].box for i in tracked], [r.box for r in want], atol=1e-9)
     assert any(n.code == "decode_error" and n.stream_id == stream for n in notices)
-    time.sleep(0.5)
+    wait_until(lambda: service.metric("arcf_video_resyncs_total") >= resyncs + 1, timeout=30,
+               what="the resync counted")
     assert service.metric("arcf_video_resyncs_total") == resyncs + 1
 
 
@@ -210,8 +211,8 @@ def test_garbage_on_the_video_key_is_refused_and_the_stream_goes_on(service, cli
     assert all(r.status == "tracking" for r in got[1:]) and got[-1].frame_seq == GOP + 1
     # both refused and counted; one notice (at most one a second per kind of error)
     assert [n.code for n in notices] == ["decode_error"] and "CDR" in notices[0].message
-    time.sleep(0.5)
-    assert service.metric("arcf_errors_total") >= errors + 2
+    wait_until(lambda: service.metric("arcf_errors_total") >= errors + 2, timeout=30,
+               what="both refusals counted")
 
 
 def test_overload_drops_tracking_work_not_decoder_state(service, clip) -> None:
@@ -235,5 +236,6 @@ def test_overload_drops_tracking_work_not_decoder_state(service, clip) -> None:
     assert all(r.status == "tracking" for r in got[1:])
     # each result accounts for the pictures skipped before it: together, every unit
     assert sum(1 + r.dropped for r in got) == N - got[0].frame_seq
-    time.sleep(0.5)
+    # (the workers count in shared files before they publish: with the last result in, a
+    # resync would show already)
     assert service.metric("arcf_video_resyncs_total") == resyncs

@@ -14,6 +14,8 @@ import pytest
 
 pytest.importorskip("zenoh")
 
+from arcf.data import data_root
+from arcf.eval import load_dataset
 from arcf.loadtools.driver import Clip
 from arcf.loadtools.procs import ServiceProcess
 from arcf.loadtools.video import encode_video
@@ -21,9 +23,6 @@ from arcf.loadtools.waiting import wait_until
 from arcf.schemas import ErrorMessage, KeySpace, decode
 from arcf.service.client import TrackingClient
 from arcf.service.scrape import by_label, fetch
-
-from arcf.data import data_root
-from arcf.eval import load_dataset
 
 pytestmark = [pytest.mark.integration,
               pytest.mark.skipif(not (data_root() / "uav123_10fps").is_dir(),
