@@ -185,8 +185,12 @@ class Recorder:
         if self.session_id is not None and result.session_id != self.session_id:
             return
         with self._lock:
-            if self._closed or self._writer is None:  # nothing to draw it on yet
+            if self._closed:
                 return
+            if self._writer is None:
+                # a result can overtake its frame (they travel on different keys): the file
+                # opens on whichever comes first, so that no result is lost
+                self._open()
             results = self._channel(
                 f"/arcf/{self.stream_id}/results", RESULTS_SCHEMA, "jsonschema",
                 json.dumps(message_schema(Result)).encode(), "json")

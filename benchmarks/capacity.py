@@ -36,9 +36,8 @@ from arcf.loadtools.system import machine
 
 
 def image_size(seq: Any) -> list[int]:
-    import cv2
 
-    h, w = cv2.imread(str(seq.frames[0]), cv2.IMREAD_UNCHANGED).shape[:2]
+    h, w = seq.read_frame(0).shape[:2]
     return [w, h]
 
 

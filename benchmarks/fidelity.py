@@ -152,7 +152,7 @@ class Report:
         f = self.rel / tracker / f"{s}.txt"
         return read_results(f) if f.is_file() else None
 
-    def score(self, boxes_of) -> tuple[float, float]:  # type: ignore[no-untyped-def]
+    def score(self, boxes_of: Any) -> tuple[float, float]:
         p, a = [], []
         for ds, s in self.pairs():
             sc = score_sequence(boxes_of(ds, s), self.gt(ds, s))

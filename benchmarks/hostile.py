@@ -158,14 +158,16 @@ def main() -> int:
         def vanishing(k: int) -> None:
             if k:
                 return
-            script = ("import time\nfrom service.client import TrackingClient\n"
+            script = ("import time\nfrom arcf.service.client import TrackingClient\n"
                       f"c = TrackingClient(connect=[{svc.endpoint!r}])\n"
                       f"[c.start(f'gone-{{j}}', {list(clip.box)!r}, preset='bacf') "
                       "for j in range(30)]\nprint('started', flush=True)\ntime.sleep(60)\n")
             station = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE,
                                        text=True)
             assert station.stdout is not None
-            station.stdout.readline()
+            started = station.stdout.readline()
+            if started != "started\n":
+                raise RuntimeError(f"the vanishing station did not start: {started!r}")
             station.kill()
             station.wait()
 
@@ -245,10 +247,10 @@ def main() -> int:
           "(ms) | worker peak RSS (MB) | refused (arcf_errors_total by kind) | sessions shed |")
     print("| --- | --- | --- | --- | --- | --- | --- |")
     for r in rows:
-        refused = ", ".join(f"{k} {v}" for k, v in sorted(r["refused"].items())) or "none"
+        refused_text = ", ".join(f"{k} {v}" for k, v in sorted(r["refused"].items())) or "none"
         print(f"| {r['phase']} | {r['victim_offered_fps']:.1f} / {r['victim_processed_fps']:.1f}"
               f" | {r['victim_dropped']} | {r['p50_ms']:.0f} / {r['p99_ms']:.0f} | "
-              f"{r['worker_peak_rss_mb']:.0f} | {refused} | {r['shed']} |")
+              f"{r['worker_peak_rss_mb']:.0f} | {refused_text} | {r['shed']} |")
     print(f"\nVictim accounting over the whole run: {accounting}")
     return 0
 

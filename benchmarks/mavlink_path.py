@@ -26,6 +26,7 @@ import threading
 import time
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 os.environ.setdefault("MAVLINK20", "1")
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -36,6 +37,7 @@ from pymavlink import mavutil
 from arcf.adapters.mavlink import CameraConfig, MavlinkCameras
 from arcf.eval import load_dataset
 from arcf.loadtools.procs import ServiceProcess, free_port
+from arcf.schemas import Result
 from arcf.service.client import TrackingClient
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -70,7 +72,7 @@ class Rig:
         self.endpoint = MavlinkCameras(self.endpoint_client, f"udpin:127.0.0.1:{self.port}",
                                        [CameraConfig("cam1", 100)],
                                        status_interval_s=1.0 / status_hz).start()
-        self.results: list[tuple[float, object]] = []
+        self.results: list[tuple[float, Result]] = []
         self.sub = self.publisher.results(
             "cam1", callback=lambda r: self.results.append((time.monotonic(), r)))
         self._stop = threading.Event()
@@ -112,7 +114,7 @@ def latency(rig: Rig, seconds: float, status_hz: float) -> None:
                                   1e6 / status_hz, 0, 0, 0, 0, 0)
     station.mav.command_long_send(1, 100, mav.MAV_CMD_CAMERA_TRACK_RECTANGLE, 0,
                                   *rig.gt_rectangle(), 0, 0, 0)
-    statuses: list[tuple[float, object]] = []
+    statuses: list[tuple[float, Any]] = []  # pymavlink messages (untyped)
     end = time.monotonic() + seconds
     next_beat = 0.0
     while time.monotonic() < end:

@@ -78,6 +78,8 @@ def occluded_frames(paths: Sequence[Path], gt: np.ndarray, start: int,
 
     for k, path in enumerate(paths):
         frame = cv2.imread(str(path), cv2.IMREAD_COLOR)
+        if frame is None:
+            raise OSError(f"cannot decode {path}")
         if start <= k < start + length and np.all(np.isfinite(gt[k])):
             x, y, w, h = gt[k]
             x0, y0 = max(int(x - 1 - 0.3 * w), 0), max(int(y - 1 - 0.3 * h), 0)
@@ -90,7 +92,6 @@ def occluded_frames(paths: Sequence[Path], gt: np.ndarray, start: int,
 
 
 def _run(preset: str, seq: object, overrides: dict, occlusion: int = 0) -> Run:
-    import cv2
 
     import arcf
     from arcf.eval.metrics import score_sequence
@@ -102,7 +103,7 @@ def _run(preset: str, seq: object, overrides: dict, occlusion: int = 0) -> Run:
         frames: Iterator[np.ndarray] = occluded_frames(
             paths, np.asarray(seq.groundtruth), len(paths) // 2, occlusion)  # type: ignore[attr-defined]
     else:
-        frames = (cv2.imread(str(p), cv2.IMREAD_COLOR) for p in paths)
+        frames = (seq.read_frame(i) for i in range(len(paths)))  # type: ignore[attr-defined]
     run = run_sequence(arcf.create_tracker(preset, **overrides), frames,
                        seq.init_box)  # type: ignore[attr-defined]
     score = score_sequence(run.boxes, seq.groundtruth)  # type: ignore[attr-defined]
@@ -191,7 +192,6 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def figure(path: Path) -> Path:
     """ARCF-H on the real occlusion clip group2_1: plain (re-acquisition off) and as shipped."""
-    import cv2
 
     import arcf
     from arcf.eval.datasets import load_sequence
@@ -205,7 +205,7 @@ def figure(path: Path) -> Path:
     runs, overlap = {}, {}
     for label, reacquire in (("plain", False), ("re-acquisition", True)):
         tracker = arcf.create_tracker("arcf-h", state={"reacquire": reacquire})
-        frames = (cv2.imread(str(p), cv2.IMREAD_COLOR) for p in seq.frames)
+        frames = (seq.read_frame(i) for i in range(len(seq.frames)))
         run = arcf.run_sequence(tracker, frames, seq.init_box)
         runs[label], overlap[label] = run.results, np.nan_to_num(overlaps(run.boxes, gt))
     return plot_track_signals(

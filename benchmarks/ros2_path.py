@@ -34,7 +34,7 @@ from arcf.service.client import TrackingClient
 from arcf.service.transport import open_session
 
 
-def _lockstep(n: int, send: Callable[[int], None], answered: Callable[[], int]) -> list[float]:
+def _lockstep(n: int, send: Callable[[int], object], answered: Callable[[], int]) -> list[float]:
     """Milliseconds from each send to its answer, one frame at a time."""
     out = []
     for i in range(n):

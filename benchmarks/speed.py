@@ -25,6 +25,10 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 TRACKERS = ("csrt", "arcf-hc", "arcf-h", "bacf")
@@ -33,6 +37,15 @@ PIN = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "
 
 
 # ----------------------------------------------------------------------------- worker side
+def _read(path: str) -> np.ndarray:
+    import cv2
+
+    image = cv2.imread(path, cv2.IMREAD_COLOR)
+    if image is None:
+        raise OSError(f"cannot decode {path}")
+    return image
+
+
 def worker(job_file: str, tracker_name: str, threads: str, profile: bool,
            stages: bool = False) -> None:
     """Runs in a fresh process: decode all frames, then time init + update."""
@@ -41,12 +54,12 @@ def worker(job_file: str, tracker_name: str, threads: str, profile: bool,
 
     cv2.setNumThreads(1 if threads == "1" else -1)
     job = json.loads(Path(job_file).read_text())
-    frames = [cv2.imread(p, cv2.IMREAD_COLOR) for p in job["frames"]]
+    frames = [_read(p) for p in job["frames"]]
     x, y, w, h = job["box"]
     kernels = 0.0  # loading (or compiling) arcf's Numba kernels, before any timing
     timer = None  # per-stage timers (``--stages``), arcf trackers only
     if tracker_name == "csrt":
-        tracker = cv2.TrackerCSRT.create()
+        tracker = cv2.TrackerCSRT.create()  # type: ignore[attr-defined]  # opencv-contrib
         box0 = (round(x - 1), round(y - 1), round(w), round(h))  # OpenCV: 0-based integer rect
         t0 = time.perf_counter()
         tracker.init(frames[0], box0)
@@ -119,7 +132,8 @@ def main() -> int:
     ap.add_argument("--data", type=Path, default=None)
     args = ap.parse_args()
     if args.worker:
-        worker(*args.worker, profile=bool(os.environ.get("ARCF_PROFILE")),
+        job_file, tracker_name, threads = args.worker
+        worker(job_file, tracker_name, threads, profile=bool(os.environ.get("ARCF_PROFILE")),
                stages=bool(os.environ.get("ARCF_STAGES")))
         return 0
 

@@ -33,7 +33,7 @@ class StageTimer:
     """Wraps functions with exclusive-time accounting; ``seconds[stage]``, ``bytes[stage]``."""
 
     def __init__(self) -> None:
-        self.seconds: Counter[str] = Counter()
+        self.seconds: defaultdict[str, float] = defaultdict(float)
         self.bytes: Counter[str] = Counter()
         self.fft_maps: Counter[tuple[str, tuple[int, ...], str]] = Counter()
         self.admm_bytes = 0

@@ -203,7 +203,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--pauses", type=int, default=8)
     ap.add_argument("--hangs", type=int, default=4)
     args = ap.parse_args(argv)
-    logging.getLogger("arcf.mavlink").setLevel(logging.ERROR)  # its warnings are measured here
+    # its warnings are what is measured here
+    logging.getLogger("arcf.adapters.mavlink").setLevel(logging.ERROR)
     (seq,) = load_dataset("uav123_10fps", sequences=["wakeboard7"])
     data = [p.read_bytes() for p in seq.frames]
     gt = np.asarray(seq.groundtruth)
@@ -228,6 +229,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         st.command(mav.MAV_CMD_SET_MESSAGE_INTERVAL,
                    mav.MAVLINK_MSG_ID_CAMERA_TRACKING_IMAGE_STATUS, 1e6 / args.status_hz)
         frame = endpoint.cameras[0].last_frame
+        assert frame is not None  # waited for above
         x, y, w, h = gt[frame.seq % len(data)]
         st.command(mav.MAV_CMD_CAMERA_TRACK_RECTANGLE, (x - 1) / W, (y - 1) / H,
                    (x - 1 + w) / W, (y - 1 + h) / H)

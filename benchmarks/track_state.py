@@ -103,7 +103,6 @@ def run(preset: str, kind: str, name: str, overrides: dict[str, Any],
         simulated: int = 0) -> Run:
     """One preset on one sequence; with ``simulated``, its target covered for that many frames
     from the middle (their ground truth then says: not visible)."""
-    import cv2
 
     import arcf
 
@@ -116,7 +115,7 @@ def run(preset: str, kind: str, name: str, overrides: dict[str, Any],
         frames = occluded_frames(seq.frames, groundtruth.copy(), start, simulated)
         groundtruth[start:start + simulated] = np.nan
     else:
-        frames = (cv2.imread(str(p), cv2.IMREAD_COLOR) for p in seq.frames)
+        frames = (seq.read_frame(i) for i in range(len(seq.frames)))
     tracker = arcf.create_tracker(preset, **overrides)
     features: list[tuple[float, ...]] = [(np.nan,) * len(FEATURES)]
     confidence = tracker._monitor.confidence
@@ -126,7 +125,7 @@ def run(preset: str, kind: str, name: str, overrides: dict[str, Any],
         features.append(f)
         return c, f
 
-    tracker._monitor.confidence = recording  # type: ignore[method-assign]
+    tracker._monitor.confidence = recording  # type: ignore[method-assign,assignment]
     boxes, state, conf, reacq, secs = [], [], [], [], []
     for i, frame in enumerate(frames):
         t0 = time.perf_counter()

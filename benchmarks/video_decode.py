@@ -12,6 +12,7 @@ import os
 import sys
 import time
 from collections.abc import Sequence
+from fractions import Fraction
 from pathlib import Path
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
@@ -46,7 +47,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     images = [decode_compressed(j) for j in jpegs]
     h, w = images[0].shape[:2]
     enc = av.CodecContext.create("libx264", "w")
-    enc.width, enc.height, enc.pix_fmt, enc.framerate = w, h, "yuv420p", 30
+    enc.width, enc.height, enc.pix_fmt, enc.framerate = w, h, "yuv420p", Fraction(30)
     enc.options = {"g": "30", "bf": "0", "preset": "veryfast", "tune": "zerolatency"}
     units = [bytes(p) for im in images
              for p in enc.encode(av.VideoFrame.from_ndarray(im, "bgr24"))]

@@ -146,15 +146,25 @@ def test_the_wheel_installs_one_namespace() -> None:
 
 @pytest.mark.integration
 def test_the_built_wheel_holds_arcf_only(tmp_path: Path) -> None:
-    """Built as pip builds it: every file under ``arcf/`` (or the wheel's metadata), with the
+    """Built as pip builds it, from a copy of the sources (no earlier build/ to reuse): every
+    file under ``arcf/`` (or the wheel's metadata), every module of every role's folder, the
     data the package reads at run time, and console scripts that point into ``arcf``."""
+    import shutil
     import zipfile
 
+    source = tmp_path / "src"
+    shutil.copytree(ROOT, source, ignore=shutil.ignore_patterns(
+        ".git", ".venv*", "build", "site", "results", "__pycache__", "*.egg-info", ".*_cache"))
     subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w",
-                    str(tmp_path), str(ROOT)], check=True, timeout=600,
+                    str(tmp_path), str(source)], check=True, timeout=600,
                    capture_output=True)
     (wheel,) = tmp_path.glob("arcf-*.whl")
     names = zipfile.ZipFile(wheel).namelist()
+    modules = {f"{PACKAGE[p.relative_to(ROOT).parts[0]].replace('.', '/')}/"
+               + "/".join(p.relative_to(ROOT).parts[1:])
+               for folder in PACKAGE for p in (ROOT / folder).rglob("*.py")
+               if "__pycache__" not in p.parts}
+    assert modules == {n for n in names if n.endswith(".py")}
     tops = {n.split("/", 1)[0] for n in names}
     assert {t for t in tops if not t.endswith(".dist-info")} == {"arcf"}
     for needed in ("arcf/features/tables/sse_amd_epyc.txt", "arcf/schemas/json/index.json",

@@ -218,3 +218,16 @@ def test_local_override_builds_everything_and_keeps_the_stack() -> None:
     assert resolved["arcf-1"]["read_only"] is True
     port = resolved["zenoh-router"]["ports"][0]  # "ip:host:container" (v1) or a mapping (v2)
     assert (port["host_ip"] if isinstance(port, dict) else port.split(":")[0]) == "127.0.0.1"
+
+
+def test_the_image_copies_every_folder_the_package_is_built_from() -> None:
+    """The Dockerfile copies the sources folder by folder: each folder pyproject maps into the
+    ``arcf`` package must be among them, or the image's ``pip install`` fails."""
+    import tomllib
+
+    root = DEPLOY.parent
+    folders = set(tomllib.loads((root / "pyproject.toml").read_text())
+                  ["tool"]["setuptools"]["package-dir"].values())
+    copied = {line.split()[1] for line in (DEPLOY / "Dockerfile").read_text().splitlines()
+              if line.startswith("COPY ") and "--from" not in line}
+    assert folders <= copied, sorted(folders - copied)

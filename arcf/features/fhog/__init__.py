@@ -129,8 +129,9 @@ def fhog(
             instructions, e.g. an :class:`~arcf.features.sse.SSETables`, a CPU's own
             ``RSQRTPS`` / ``RCPPS`` replayed bit for bit from the tables that
             ``tools/sse_approx_dump.c`` measured on it (the package ships the AMD EPYC's
-            that traced the release), or :data:`SSE_MODEL`, the model through the separate
-            steps instead of the fused kernel (the same bits).
+            that traced the release), or :data:`SSE_MODEL`, the model itself (the same bits as
+            ``"release"``). uint8 images run fused with tables of every pixel built from the
+            instructions; other pixels take the separate steps, which call them.
         out: where to write the result, a float32 array of the result's shape with any strides
             (e.g. a transposed view of a channel-first buffer, which is how the trackers get
             their feature maps without a copy); returned.

@@ -176,8 +176,9 @@ def release_rcp(x: np.ndarray, out: np.ndarray) -> np.ndarray:
 class SSEModel:
     """The modelled instructions of the AMD EPYC that traced the release: ``rsqrt`` rounded to
     13 significant bits, ``rcp`` correctly rounded (see :func:`~arcf.features.fhog.fhog`).
-    ``fhog(arithmetic="release")`` computes exactly this, fused; passing :data:`SSE_MODEL`
-    runs the same arithmetic through the separate steps."""
+    ``fhog(arithmetic="release")`` computes exactly this; passing :data:`SSE_MODEL` gives the
+    same bits through the general path (tables of every pixel built from this object for uint8
+    images, the separate steps for other pixels)."""
 
     cpu = "model of the AMD EPYC that traced the release"
 
