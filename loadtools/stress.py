@@ -159,6 +159,7 @@ def run_overload(client: Any, sequences: list[Any], *, service_pid: int,
     capacity with :func:`saturation_capacity` instead of the latency ramp."""
     fleet = _stress_fleet(client, sequences, preset, fps, window)
     before = scrape(metrics_url)
+    errors_before = _errors_by_kind(metrics_url)
     with MemorySampler(service_pid, interval=1.0) as memory, fleet:
         t_ramp = time.monotonic()
         if capacity is None and capacity_from == "throughput":
@@ -198,6 +199,7 @@ def run_overload(client: Any, sequences: list[Any], *, service_pid: int,
         fleet.close()
         time.sleep(0.5)
     delta = metrics_delta(before, scrape(metrics_url))
+    errors = _errors_delta(errors_before, metrics_url)
 
     def phase(name: str, start: str, end: str, streams: list[SimulatedStream] | None = None
               ) -> dict[str, Any]:
@@ -237,12 +239,19 @@ def run_overload(client: Any, sequences: list[Any], *, service_pid: int,
         "ledger": ledger,
         "results_dropped_total": ledger["dropped"],
         "metrics_delta": delta,
+        "errors_by_kind": errors,
     }
 
 
 # --------------------------------------------------------------------------- soak
 def _errors_by_kind(metrics_url: str | None) -> dict[str, float]:
     return by_label(fetch(metrics_url), "arcf_errors_total", "kind") if metrics_url else {}
+
+
+def _errors_delta(before: dict[str, float], metrics_url: str | None) -> dict[str, float]:
+    """``arcf_errors_total`` by kind since ``before``, the kinds that grew."""
+    now = _errors_by_kind(metrics_url)
+    return {k: v - before.get(k, 0.0) for k, v in now.items() if v - before.get(k, 0.0)}
 
 
 def run_soak(client: Any, sequences: list[Any], *, service_pid: int,
@@ -294,8 +303,7 @@ def run_soak(client: Any, sequences: list[Any], *, service_pid: int,
         fleet.close()
         time.sleep(1.0)
     delta = metrics_delta(before, scrape(metrics_url))
-    errors = {k: v - errors_before.get(k, 0.0) for k, v in _errors_by_kind(metrics_url).items()
-              if v - errors_before.get(k, 0.0)}
+    errors = _errors_delta(errors_before, metrics_url)
     # warm: the first window after warm-up; end: the same length at the end of the run
     span = min(max(60.0, 10 * sample_s), (duration_s - warmup_s) / 3)
     warm = memory.summary(t_start + warmup_s, t_start + warmup_s + span)

@@ -40,6 +40,16 @@ def wakeboard() -> list:
     return load_dataset("uav123_10fps", sequences=["wakeboard7"])
 
 
+def assert_only_frames_after_a_stop(r: dict) -> None:
+    """The only errors the service counts are frames of streams it no longer tracks
+    (``no_session``): a frame sent just before its stream's last session stops can reach the
+    service after the stop, since frames and requests travel apart. Each such frame was sent
+    and never answered, so there are at most as many as the ledger's unanswered tails."""
+    errors = r["errors_by_kind"]
+    assert set(errors) <= {"no_session"}, errors
+    assert errors.get("no_session", 0) <= r["ledger"]["tail"], (errors, r["ledger"])
+
+
 def test_three_times_capacity(wakeboard: list) -> None:
     svc = ServiceProcess(workers=2)
     try:
@@ -62,7 +72,7 @@ def test_three_times_capacity(wakeboard: list) -> None:
                           for x in r["timeline"]])
     assert capacity >= 1 and overload["streams"] == 3 * capacity
     assert nominal["errors"] == overload["errors"] == recovery["errors"] == 0
-    assert r["metrics_delta"].get("arcf_errors_total", 0) == 0
+    assert_only_frames_after_a_stop(r)
 
     # the stimulus was an overload: several times the nominal offer (half the capacity), and
     # the service shed frames
@@ -118,7 +128,7 @@ def test_soak_sessions_come_and_go(wakeboard: list) -> None:
     assert r["streams_started"] >= 25
     assert r["sessions_started"] == r["sessions_stopped"] > r["streams_started"]
     assert r["ledger"]["unaccounted"] == 0 and r["ledger"]["out_of_order"] == 0
-    assert r["metrics_delta"].get("arcf_errors_total", 0) == 0, r["errors_by_kind"]
+    assert_only_frames_after_a_stop(r)
     # after warm-up the service's memory (anonymous, all its processes) stays flat
     assert r["growth_mb"] < 5.0  # leaking one tracker per session shows as about 8 MB
     assert r["memory_steady"]["anon_max_mb"] - r["memory_warm_mb"]["anon_median_mb"] < 20.0
