@@ -140,8 +140,11 @@ def test_host_client_tracks_a_real_sequence_through_the_router(stack: Stack) -> 
     expected = [reference.init(seq.read_frame(0), seq.init_box).box]
     expected += [reference.update(seq.read_frame(i)).box for i in range(1, len(seq))]
     # lock step (frame i once frame i - 1 is answered): a frame the service sheds because the
-    # machine stalled would be counted, not lost, but its box would leave the library's run
-    with TrackingClient(connect=[f"tcp/127.0.0.1:{stack.router_port}"]) as client, \
+    # machine stalled would be counted, not lost, but its box would leave the library's run.
+    # A replay publishes with BLOCK (docs/wire-contract.md): with live video's DROP a stalled
+    # machine lets Zenoh drop a frame's fragments on the way through the router.
+    with TrackingClient(connect=[f"tcp/127.0.0.1:{stack.router_port}"],
+                        frame_congestion="block") as client, \
             Fleet(client, [Clip.of(seq)], preset="bacf", pacing=Pacing.lock_step()) as fleet:
         assert sorted(client.status().instances) == list(INSTANCES)
         (stream,) = fleet.add(names=["cam-host"], session_id=lambda *_: "s-host",
