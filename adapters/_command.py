@@ -7,6 +7,7 @@ import argparse
 import logging
 import signal
 import threading
+import time
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -17,16 +18,65 @@ DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 
 
 def add_service_arguments(ap: argparse.ArgumentParser) -> None:
-    """``--connect`` (repeatable) and ``--prefix``: where the service is."""
+    """``--connect`` (repeatable), ``--prefix`` and ``--wait-s``: where the service is, and
+    how long to wait for it."""
     ap.add_argument("-e", "--connect", action="append", default=None, metavar="ENDPOINT",
                     help=f"the service's Zenoh endpoint, repeatable (default: {DEFAULT_ENDPOINT})")
     ap.add_argument("--prefix", default="arcf/v1",
                     help="the service's key-expression prefix (default: %(default)s)")
+    ap.add_argument("--wait-s", type=float, default=120.0, metavar="SECONDS",
+                    help="how long to wait for the service to answer at start (it may start "
+                    "after this command; default %(default)s, 0: ask once)")
 
 
-def service_client(args: argparse.Namespace) -> TrackingClient:
-    """A client of the service the arguments name."""
-    return TrackingClient(connect=args.connect or [DEFAULT_ENDPOINT], prefix=args.prefix)
+def service_client(args: argparse.Namespace, **kwargs: Any) -> TrackingClient:
+    """A client of the service the arguments name (it may not answer yet)."""
+    return TrackingClient(connect=args.connect or [DEFAULT_ENDPOINT], prefix=args.prefix,
+                          **kwargs)
+
+
+#: the first wait between two attempts to reach the service, and the longest
+RETRY_S, RETRY_MAX_S = 0.5, 5.0
+
+
+def wait_for_service(args: argparse.Namespace, logger: logging.Logger, stop: threading.Event,
+                     **kwargs: Any) -> TrackingClient | None:
+    """A client of the service, once the service answers a ``status`` request.
+
+    The adapters may start before the service (or its router): each attempt that fails
+    (no Zenoh router at the endpoint, or no service answering behind it) is logged with the
+    reason and tried again, after 0.5 s, then twice as long each time up to 5 s, for
+    ``--wait-s`` seconds in all. Returns None (the reason logged) when that time passes or
+    ``stop`` is set first: the command then exits with status 2 rather than a traceback."""
+    import zenoh  # the adapters' transport; imported here to keep this module light
+
+    endpoints = ", ".join(args.connect or [DEFAULT_ENDPOINT])
+    deadline = time.monotonic() + max(0.0, args.wait_s)
+    attempt = 0
+    while True:
+        attempt += 1
+        client: TrackingClient | None = None
+        try:
+            client = service_client(args, **kwargs)
+            client.status(timeout=2.0)
+            if attempt > 1:
+                logger.info("the tracking service answers at %s", endpoints)
+            return client
+        except (zenoh.ZError, TimeoutError) as exc:
+            why = (f"no Zenoh router at {endpoints}" if isinstance(exc, zenoh.ZError)
+                   else f"nothing answers on {args.prefix}/control at {endpoints}")
+            if client is not None:
+                client.close()
+        left = deadline - time.monotonic()
+        if left <= 0:
+            logger.error("the tracking service did not answer (%s) in %.0f s: giving up",
+                         why, args.wait_s)
+            return None
+        wait = min(RETRY_S * 2 ** (attempt - 1), RETRY_MAX_S, left)
+        logger.warning("waiting for the tracking service: %s (attempt %d; next in %.1f s, "
+                       "%.0f s left)", why, attempt, wait, left)
+        if stop.wait(wait):
+            return None
 
 
 def prepare() -> threading.Event:

@@ -54,7 +54,7 @@ from arcf.service.decoding import decode_compressed
 from arcf.service.imagecheck import image_size
 from arcf.service.video import CODECS, Outcome, StreamDecoder
 
-from ._command import add_service_arguments, prepare, service_client
+from ._command import add_service_arguments, prepare, wait_for_service
 from .record import PALETTE
 from .tap import DEFAULT_VIDEO_KEY, StreamTap, TapFrame
 
@@ -612,7 +612,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     add_service_arguments(ap)
     args = ap.parse_args(argv)
     stop = prepare()
-    with service_client(args) as client:
+    client = wait_for_service(args, log, stop)
+    if client is None:
+        return 2
+    with client:
         try:
             view = LiveView(client, args.host, args.port, max_fps=args.max_fps,
                             max_width=args.max_width, video_key=args.video_key or None,

@@ -66,8 +66,9 @@ os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil
 
 from arcf.schemas import ErrorCode, Frame, Result, ResultStatus, TrackState
-from arcf.service.client import MessageStream, ServiceError, TrackingClient
+from arcf.service.client import ServiceError, TrackingClient
 from arcf.service.imagecheck import image_size
+from arcf.service.video import CODECS, PictureSize
 
 from ._command import (
     add_override_arguments,
@@ -75,8 +76,9 @@ from ._command import (
     check_preset,
     parse_overrides,
     prepare,
-    service_client,
+    wait_for_service,
 )
+from .tap import DEFAULT_VIDEO_KEY, StreamTap, TapFrame
 
 log = logging.getLogger(__name__)
 mav = mavutil.mavlink
@@ -94,11 +96,42 @@ TARGET_DATA_NONE = getattr(mav, "CAMERA_TRACKING_TARGET_DATA_NONE", 0)
 
 
 @dataclass(frozen=True)
+class VideoStream:
+    """The video a station should show for a camera, as ``VIDEO_STREAM_INFORMATION`` says it:
+    ``kind`` is a ``VIDEO_STREAM_TYPE`` and ``uri`` what the station opens (an RTSP URI) or
+    the UDP port it listens on (RTP, MPEG-TS), as the message's definition has it."""
+
+    kind: int
+    uri: str
+
+    @classmethod
+    def parse(cls, text: str) -> VideoStream:
+        """``rtsp://HOST[:PORT]/PATH`` (the station connects), ``rtp://[HOST]:PORT`` (RTP over
+        UDP: the station listens on PORT, QGroundControl's 5600 by convention) or
+        ``udp://[HOST]:PORT`` (MPEG-TS over UDP), as ``arcf-ingest`` names sources."""
+        if text.startswith(("rtsp://", "rtsps://")):
+            uri, kind = text, mav.VIDEO_STREAM_TYPE_RTSP
+        else:
+            scheme, _, rest = text.partition("://")
+            kinds = {"rtp": mav.VIDEO_STREAM_TYPE_RTPUDP, "udp": mav.VIDEO_STREAM_TYPE_MPEG_TS}
+            port = rest.rpartition(":")[2].strip("/")
+            if scheme not in kinds or not port.isdigit() or not 0 < int(port) < 65536:
+                raise ValueError(f"a video stream is rtsp://HOST/PATH, rtp://[HOST]:PORT or "
+                                 f"udp://[HOST]:PORT, got {text!r}")
+            uri, kind = port, kinds[scheme]
+        if len(uri.encode()) > 160:
+            raise ValueError("a video stream URI holds at most 160 bytes")
+        return cls(kind, uri)
+
+
+@dataclass(frozen=True)
 class CameraConfig:
-    """One MAVLink camera: the service's stream it shows and its component id."""
+    """One MAVLink camera: the service's stream it shows, its component id and the video a
+    station should show for it (None: the camera advertises no video)."""
 
     stream_id: str
     component_id: int
+    video: VideoStream | None = None
 
 
 @dataclass
@@ -106,7 +139,11 @@ class _Camera:
     config: CameraConfig
     encoder: Any  # a pymavlink MAVLink encoder sending as this component
     number: int  # 1-based, as the track commands' "camera id" parameter counts cameras
-    last_frame: Frame | None = None
+    last_frame: TapFrame | None = None
+    #: the picture size of a video stream, read from its keyframes when needed
+    video_size: PictureSize | None = None
+    #: monotonic time of the last frame
+    frame_at: float = 0.0
     session_id: str | None = None
     mode: int = mav.CAMERA_TRACKING_MODE_NONE
     result: Result | None = None
@@ -132,16 +169,25 @@ class Denied(Exception):
     """A command that cannot be carried out as given (``MAV_RESULT_DENIED``)."""
 
 
-def frame_size(frame: Frame, max_pixels: int = 4096 * 2160) -> tuple[int, int]:
-    """(width, height) of a stream's frame: declared, or read from its JPEG / PNG header
-    (nothing is decoded). Raises ``ValueError`` for a size that cannot be read or is above
+def frame_size(frame: Frame | TapFrame, max_pixels: int = 4096 * 2160,
+               video: PictureSize | None = None) -> tuple[int, int]:
+    """(width, height) of a stream's frame: declared, read from its JPEG / PNG header, or
+    for video from the stream's latest keyframe (``video``, which decodes it once per set of
+    parameter sets). Raises ``ValueError`` for a size that cannot be read or is above
     ``max_pixels`` (the service's default limit)."""
+    encoding = getattr(frame.encoding, "value", frame.encoding)
     if frame.width and frame.height:
         size = (frame.width, frame.height)
     else:
-        read = image_size(frame.payload) if frame.encoding.value in ("jpeg", "png") else None
+        read = None
+        if encoding in ("jpeg", "png"):
+            read = image_size(frame.payload)
+        elif encoding in CODECS and video is not None:
+            read = video.read()
+            if read is None:
+                raise ValueError(f"no {encoding} keyframe with its parameter sets yet")
         if read is None:
-            raise ValueError(f"no size in a {frame.encoding.value} frame's header")
+            raise ValueError(f"no size in a {encoding} frame's header")
         size = read
     if size[0] * size[1] > max_pixels:
         raise ValueError(f"{size[0]}x{size[1]} is above {max_pixels} pixels")
@@ -216,6 +262,15 @@ DONE_KEPT_S = 5.0
 DONE_MAX = 256
 #: the most addresses a listening (udpin) link sends to
 MAX_PEERS = 8
+#: MAV_CMD_REQUEST_VIDEO_STREAM_INFORMATION / _STATUS (deprecated for REQUEST_MESSAGE, still
+#: sent by older stations) -> the message each asks for
+_VIDEO_REQUESTS = {getattr(mav, "MAV_CMD_REQUEST_VIDEO_STREAM_INFORMATION", 2504):
+                   mav.MAVLINK_MSG_ID_VIDEO_STREAM_INFORMATION,
+                   getattr(mav, "MAV_CMD_REQUEST_VIDEO_STREAM_STATUS", 2505):
+                   mav.MAVLINK_MSG_ID_VIDEO_STREAM_STATUS}
+#: a frame encoding -> VIDEO_STREAM_ENCODING
+_VIDEO_ENCODINGS = {"h264": getattr(mav, "VIDEO_STREAM_ENCODING_H264", 1),
+                    "h265": getattr(mav, "VIDEO_STREAM_ENCODING_H265", 2)}
 
 
 def _padded(text: str, size: int) -> list[int]:
@@ -238,12 +293,15 @@ class MavlinkCameras:
                  preset: str = "arcf-hc", overrides: Mapping[str, Any] | None = None,
                  status_interval_s: float = 0.1, heartbeat_s: float = 1.0,
                  link_timeout_s: float = 5.0, stale_after_s: float = 0.8,
-                 signing_key: bytes | None = None, max_pixels: int = 4096 * 2160) -> None:
+                 signing_key: bytes | None = None, max_pixels: int = 4096 * 2160,
+                 video_key: str | None = DEFAULT_VIDEO_KEY) -> None:
         """``stale_after_s``: a session with no result for this long is reported stale
         (ERROR, no box), as the service reports a stream without frames; the service's own
         setting of the same name is the right value (0: only the service's notices).
         ``signing_key``: 32 bytes of MAVLink 2 signing secret (sign everything, accept only
-        signed messages). ``max_pixels``: the largest frame a command is carried out on."""
+        signed messages). ``max_pixels``: the largest frame a command is carried out on.
+        ``video_key``: the service's key of CDR ``CompressedVideo`` streams (None: none), whose
+        units the camera shows as well as the service's own frames."""
         if signing_key is not None and len(signing_key) != 32:
             raise ValueError(f"a MAVLink signing key is 32 bytes, got {len(signing_key)}")
         if not cameras:
@@ -295,18 +353,24 @@ class MavlinkCameras:
         self._text_id = 0
         self._last_station: float | None = None
         self.link_up = False
-        self._watches: list[MessageStream[Any]] = []  # last: their callbacks may run at once
-        for cam in self.cameras:
-            self._watches.append(client.frames(cam.config.stream_id,
-                                               callback=self._frame_seen(cam)))
-            self._watches.append(client.results(cam.config.stream_id,
-                                                callback=self._result_seen(cam)))
+        # last: their callbacks may run at once
+        self._taps = [StreamTap(client, cam.config.stream_id, self._frame_seen(cam),
+                                self._result_seen(cam), video_key) for cam in self.cameras]
 
     # ------------------------------------------------------------------ service side
     def _frame_seen(self, cam: _Camera) -> Any:
-        def seen(frame: Frame) -> None:
+        def seen(frame: TapFrame) -> None:
+            size = None
+            if frame.is_video:  # its size is in its keyframes: kept for a command's need
+                codec = CODECS[frame.encoding]
+                size = cam.video_size
+                if size is None or size.codec != codec:
+                    size = PictureSize(codec, self.max_pixels)
+                size.feed(frame.payload)
             with self._state_lock:
-                cam.last_frame = frame
+                cam.last_frame, cam.frame_at = frame, time.monotonic()
+                if size is not None:
+                    cam.video_size = size
         return seen
 
     def _result_seen(self, cam: _Camera) -> Any:
@@ -380,8 +444,8 @@ class MavlinkCameras:
         self._stop.set()
         for t in self._threads:
             t.join(timeout=5)
-        for w in self._watches:
-            w.close()
+        for tap in self._taps:
+            tap.close()
         self.conn.close()
 
     # ------------------------------------------------------------------ sending
@@ -484,22 +548,51 @@ class MavlinkCameras:
             mode, mav.CAMERA_TRACKING_TARGET_DATA_IN_STATUS, *coords, 0)
 
     def _information(self, cam: _Camera) -> Any:
-        with self._state_lock:
-            frame = cam.last_frame
-        stream = cam.config.stream_id
-        if frame is not None and stream not in self._sizes:
-            # once per stream, from the image's header; unreadable or too large: 0 x 0
-            with contextlib.suppress(ValueError):
-                self._sizes[stream] = frame_size(frame, self.max_pixels)
-        w, h = self._sizes.get(stream, (0, 0))
-        if frame is not None and frame.width and frame.height:
-            w, h = frame.width, frame.height
+        w, h = self._size(cam) or (0, 0)  # unreadable or too large: 0 x 0
         nan = float("nan")
+        flags = (mav.CAMERA_CAP_FLAGS_HAS_TRACKING_POINT
+                 | mav.CAMERA_CAP_FLAGS_HAS_TRACKING_RECTANGLE)
+        if cam.config.video is not None:
+            flags |= mav.CAMERA_CAP_FLAGS_HAS_VIDEO_STREAM
         return mav.MAVLink_camera_information_message(
             int(1e3 * (time.monotonic() - self._t0)) & 0xFFFFFFFF, _padded("arcf", 32),
             _padded(f"ARCF tracker {cam.config.stream_id}", 32), 0, nan, nan, nan, w, h, 0,
-            mav.CAMERA_CAP_FLAGS_HAS_TRACKING_POINT
-            | mav.CAMERA_CAP_FLAGS_HAS_TRACKING_RECTANGLE, 0, b"", 0, 0)
+            flags, 0, b"", 0, 0)
+
+    def _size(self, cam: _Camera) -> tuple[int, int] | None:
+        """The stream's picture size: its latest frame's (declared, from its header, or from
+        its video's keyframe), else the last one read; None if none could be read."""
+        with self._state_lock:
+            frame, video = cam.last_frame, cam.video_size
+        stream = cam.config.stream_id
+        if frame is not None:
+            with contextlib.suppress(ValueError):
+                self._sizes[stream] = frame_size(frame, self.max_pixels, video)
+        return self._sizes.get(stream)
+
+    def _video_running(self, cam: _Camera) -> bool:
+        with self._state_lock:
+            return cam.last_frame is not None and time.monotonic() - cam.frame_at < max(
+                self.stale_after_s, 1.0)
+
+    def _video_information(self, cam: _Camera) -> Any:
+        """``VIDEO_STREAM_INFORMATION`` of the camera's one stream (id 1)."""
+        video = cam.config.video
+        assert video is not None
+        w, h = self._size(cam) or (0, 0)
+        with self._state_lock:
+            encoding = cam.last_frame.encoding if cam.last_frame is not None else None
+        return mav.MAVLink_video_stream_information_message(
+            1, 1, video.kind,
+            mav.VIDEO_STREAM_STATUS_FLAGS_RUNNING if self._video_running(cam) else 0,
+            0.0, w, h, 0, 0, 0, f"arcf {cam.config.stream_id}".encode()[:32],
+            video.uri.encode(), _VIDEO_ENCODINGS.get(encoding or "", 0))
+
+    def _video_status(self, cam: _Camera) -> Any:
+        w, h = self._size(cam) or (0, 0)
+        return mav.MAVLink_video_stream_status_message(
+            1, mav.VIDEO_STREAM_STATUS_FLAGS_RUNNING if self._video_running(cam) else 0,
+            0.0, w, h, 0, 0, 0)
 
     # ------------------------------------------------------------------ receiving
     def _trim_peers(self, station: bool) -> None:
@@ -613,8 +706,13 @@ class MavlinkCameras:
             elif wanted == mav.MAVLINK_MSG_ID_CAMERA_TRACKING_IMAGE_STATUS:
                 self._ack(cam, msg, mav.MAV_RESULT_ACCEPTED)
                 self._send(cam, self._status(cam))
+            elif wanted in (mav.MAVLINK_MSG_ID_VIDEO_STREAM_INFORMATION,
+                            mav.MAVLINK_MSG_ID_VIDEO_STREAM_STATUS):
+                self._video_request(cam, msg, wanted, msg.param2)
             else:
                 self._ack(cam, msg, mav.MAV_RESULT_DENIED)
+        elif cmd in _VIDEO_REQUESTS:  # the commands REQUEST_MESSAGE replaced
+            self._video_request(cam, msg, _VIDEO_REQUESTS[cmd], msg.param1)
         elif cmd in TRACK_COMMANDS:
             key = self._key(cam, msg)
             if key in self._pending:
@@ -633,6 +731,20 @@ class MavlinkCameras:
                 self._ack(cam, msg, mav.MAV_RESULT_TEMPORARILY_REJECTED, "busy")
         else:
             self._ack(cam, msg, mav.MAV_RESULT_UNSUPPORTED)
+
+    def _video_request(self, cam: _Camera, msg: Any, wanted: int, stream_id: float) -> None:
+        """``VIDEO_STREAM_INFORMATION`` or ``_STATUS`` of stream ``stream_id`` (0: all; the
+        camera has one, id 1): denied, with the reason, when the camera advertises none."""
+        if cam.config.video is None:
+            self._ack(cam, msg, mav.MAV_RESULT_DENIED,
+                      "no video stream configured for this camera (arcf-mavlink --video)")
+        elif whole(stream_id) not in (0, 1):
+            self._ack(cam, msg, mav.MAV_RESULT_DENIED, f"no video stream {stream_id:g}")
+        else:
+            self._ack(cam, msg, mav.MAV_RESULT_ACCEPTED)
+            self._send(cam, self._video_information(cam)
+                       if wanted == mav.MAVLINK_MSG_ID_VIDEO_STREAM_INFORMATION
+                       else self._video_status(cam))
 
     # ------------------------------------------------------------------ track commands
     def _command_loop(self) -> None:
@@ -683,13 +795,17 @@ class MavlinkCameras:
                     log.info("mavlink: stop of %s: %s", session, exc)  # it ended already
             return mav.MAV_RESULT_ACCEPTED, None
         with self._state_lock:
-            frame = cam.last_frame
+            frame, video = cam.last_frame, cam.video_size
         if frame is None:
             return mav.MAV_RESULT_DENIED, "no frames yet on this stream"
         try:
-            size = frame_size(frame, self.max_pixels)
+            size = frame_size(frame, self.max_pixels, video)
         except ValueError as exc:
             return mav.MAV_RESULT_DENIED, f"latest frame unusable: {exc}"
+        # the service's own frames carry its numbering; CompressedVideo units are numbered
+        # by the service as they arrive, which a listener cannot know: the box then applies
+        # to the first picture the session sees
+        frame_seq = frame.seq if frame.source == "frame" else None
         self._sizes[stream] = size
         try:
             if msg.command == mav.MAV_CMD_CAMERA_TRACK_RECTANGLE:
@@ -704,7 +820,7 @@ class MavlinkCameras:
         try:
             if cam.session_id is not None:
                 try:
-                    self.client.reinit(cam.session_id, xywh, frame_seq=frame.seq)
+                    self.client.reinit(cam.session_id, xywh, frame_seq=frame_seq)
                     with self._state_lock:
                         cam.mode = mode
                         if cam.result is None:  # no result yet: its wait starts again
@@ -715,7 +831,7 @@ class MavlinkCameras:
                         raise
                     # the service ended it meanwhile: start a new one
             ack = self.client.start(stream, xywh, preset=self.preset,
-                                    overrides=self.overrides, frame_seq=frame.seq)
+                                    overrides=self.overrides, frame_seq=frame_seq)
         except ServiceError as exc:
             return mav.MAV_RESULT_FAILED, f"{exc.code}: {exc.error.message}"
         except TimeoutError:
@@ -773,15 +889,38 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--max-pixels", type=int, default=4096 * 2160,
                     help="largest frame (from its header or declaration) a track command is "
                     "carried out on (default: %(default)s, DCI 4K)")
+    ap.add_argument("--video", action="append", default=[], metavar="STREAM=URI",
+                    help="the video a station should show for a camera, advertised in "
+                    "VIDEO_STREAM_INFORMATION: rtsp://HOST:PORT/PATH, rtp://:PORT (RTP/UDP, "
+                    "the station listens: 5600 for QGroundControl) or udp://:PORT (MPEG-TS)")
+    ap.add_argument("--video-key", default=DEFAULT_VIDEO_KEY,
+                    help="the service's video_key ('' for none): CompressedVideo streams")
     args = ap.parse_args(argv)
     overrides = parse_overrides(ap, args.set)
     try:
         signing_key = _signing_key(args.signing_key) if args.signing_key else None
     except (OSError, ValueError) as exc:
         ap.error(f"--signing-key: {exc}")
+    videos: dict[str, VideoStream] = {}
+    for item in args.video:
+        stream, sep, uri = item.partition("=")
+        if not sep:
+            ap.error(f"--video needs STREAM=URI, got {item!r}")
+        try:
+            videos[stream] = VideoStream.parse(uri)
+        except ValueError as exc:
+            ap.error(f"--video: {exc}")
     cameras = [_camera(c, i) for i, c in enumerate(args.camera)]
+    unknown = set(videos) - {c.stream_id for c in cameras}
+    if unknown:
+        ap.error(f"--video for streams that are no --camera: {sorted(unknown)}")
+    cameras = [CameraConfig(c.stream_id, c.component_id, videos.get(c.stream_id))
+               for c in cameras]
     stop = prepare()
-    with service_client(args) as client:
+    client = wait_for_service(args, log, stop)
+    if client is None:
+        return 2
+    with client:
         try:
             check_preset(client, args.preset, overrides)
         except (ValueError, TimeoutError, ServiceError) as exc:
@@ -791,7 +930,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             client, args.mavlink, cameras, system_id=args.system_id, preset=args.preset,
             overrides=overrides, status_interval_s=1.0 / args.status_hz if args.status_hz else 0,
             link_timeout_s=args.link_timeout, stale_after_s=args.stale_after_s,
-            signing_key=signing_key, max_pixels=args.max_pixels).start()
+            signing_key=signing_key, max_pixels=args.max_pixels,
+            video_key=args.video_key or None).start()
         print(f"arcf-mavlink: {len(cameras)} camera(s) on {args.mavlink}: "
               + ", ".join(f"{c.stream_id} as {args.system_id}/{c.component_id}"
                           for c in cameras), flush=True)
@@ -808,6 +948,7 @@ __all__ = [
     "CameraConfig",
     "Denied",
     "MavlinkCameras",
+    "VideoStream",
     "check_preset",
     "frame_size",
     "main",

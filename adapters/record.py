@@ -46,7 +46,7 @@ from arcf.service import foxglove
 from arcf.service.client import TrackingClient
 from arcf.service.video import CODECS, KEYFRAME_TYPES, nal_units
 
-from ._command import add_service_arguments, prepare, service_client
+from ._command import add_service_arguments, prepare, wait_for_service
 from .tap import DEFAULT_VIDEO_KEY, StreamTap, TapFrame
 
 log = logging.getLogger(__name__)
@@ -250,7 +250,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not re.fullmatch(r"[A-Za-z0-9_.-]{1,64}", args.stream):
         ap.error(f"not a stream id: {args.stream!r}")
     stop = prepare()
-    with service_client(args) as client, \
+    client = wait_for_service(args, log, stop)
+    if client is None:
+        return 2
+    with client, \
             Recorder(client, args.stream, args.out, session_id=args.session,
                      segment_bytes=int(args.segment_mb * (1 << 20)), keep=args.keep,
                      video_key=args.video_key or None) as recorder:

@@ -24,7 +24,10 @@ publisher gid), and announce nodes, publishers and subscriptions with liveliness
 * a ``vision_msgs/msg/Detection2D`` on ``/arcf/<stream>/track`` starts a session on the stream
   from its ``bbox`` (pixels), or re-initialises the session named by its ``id`` (empty: the
   bridge's own session of that stream; only sessions of that stream); a 0 x 0 box stops it,
-  and a box with a negative, NaN or half-zero size is refused.
+  and a box with a negative, NaN or half-zero size is refused. Every request is answered on
+  ``/arcf/<stream>/track_reply`` (``diagnostic_msgs/msg/DiagnosticArray``, the request's
+  header for the requester to match, one status: OK with the session, or ERROR with the
+  reason and its code).
 
 Wire facts from rmw_zenoh (``docs/design.md``, ``liveliness_utils.cpp``,
 ``attachment_helpers.cpp``): the attachment is the sequence number and the source timestamp as
@@ -63,7 +66,7 @@ from ._command import (
     check_preset,
     parse_overrides,
     prepare,
-    service_client,
+    wait_for_service,
 )
 
 log = logging.getLogger(__name__)
@@ -246,6 +249,35 @@ def diagnostics(result: Result, node_name: str, stamp_ns: int) -> Any:
     return rt.message(rt.DIAGNOSTIC_ARRAY, header=_header(stamp_ns, ""), status=[status])
 
 
+@dataclass(frozen=True)
+class TrackReply:
+    """What a track request got: carried out (``ok``) or not, which request it was
+    (``start``, ``reinit``, ``stop``), the session, and why not (a code and a text)."""
+
+    ok: bool
+    request: str
+    session_id: str | None
+    code: str | None
+    text: str
+
+
+def track_reply(reply: TrackReply, stream_id: str, node_name: str, header: Any) -> Any:
+    """A track request's answer as a ``diagnostic_msgs/msg/DiagnosticArray``: the request's
+    own header (its stamp and frame id: how the requester matches them), one status named
+    ``<node>: <stream> track``, OK or ERROR, the text, and as values the request, the
+    session and the code."""
+    values = {"request": reply.request, "session_id": reply.session_id or "",
+              "code": reply.code or "", "stream_id": stream_id}
+    status = rt.message(
+        "diagnostic_msgs/msg/DiagnosticStatus", level=OK if reply.ok else ERROR,
+        name=f"{node_name}: {stream_id} track", message=reply.text, hardware_id=stream_id,
+        values=[rt.message("diagnostic_msgs/msg/KeyValue", key=k, value=v)
+                for k, v in values.items()])
+    return rt.message(rt.DIAGNOSTIC_ARRAY,
+                      header=header if header is not None else _header(time.time_ns(), ""),
+                      status=[status])
+
+
 def _encoding(fmt: str) -> str | None:
     """``CompressedImage.format`` ("jpeg", "png", "bgr8; jpeg compressed bgr8", ...) as a
     frame encoding of the service."""
@@ -263,6 +295,7 @@ class _Stream:
     topic: str
     track_topic: str
     publisher: Ros2Publisher
+    replies: Ros2Publisher
     seq: int = 0
     headers: OrderedDict[int, tuple[int, str]] | None = None
     session_id: str | None = None
@@ -325,6 +358,7 @@ class Ros2Bridge:
             track = f"{base}/{node_name}/{stream_id}/track"
             s = _Stream(stream_id, topic, track,
                         Ros2Publisher(self.node, out, rt.DETECTION_2D_ARRAY),
+                        Ros2Publisher(self.node, f"{track}_reply", rt.DIAGNOSTIC_ARRAY),
                         headers=OrderedDict(), sessions=set())
             self.streams[stream_id] = s
             self.node.entity("MS", topic, rt.COMPRESSED_IMAGE)
@@ -365,6 +399,9 @@ class Ros2Bridge:
                 self.counts[f"bad_{kind}"] += 1
                 self._warn(f"bad_{kind}", "ros2: %s refused: %s",
                            s.topic if kind == "image" else s.track_topic, exc)
+                if kind == "track":  # not even a Detection2D: answered all the same
+                    self._reply(s, None, TrackReply(False, "", None, "invalid_request",
+                                                    f"not a vision_msgs/Detection2D: {exc}"))
 
     def _image(self, s: _Stream, payload: bytes) -> None:
         msg = rt.deserialize(payload, rt.COMPRESSED_IMAGE)
@@ -388,40 +425,60 @@ class Ros2Bridge:
 
     def _track(self, s: _Stream, payload: bytes) -> None:
         det = rt.deserialize(payload, rt.DETECTION_2D)
+        self._reply(s, det.header, self._carry_out(s, det))
+
+    def _carry_out(self, s: _Stream, det: Any) -> TrackReply:
+        """A track request carried out, or refused, and what to answer."""
         cx, cy = det.bbox.center.position.x, det.bbox.center.position.y
         w, h = det.bbox.size_x, det.bbox.size_y
         session = det.id or s.session_id
+        request = "stop" if w == 0 and h == 0 else "reinit" if session else "start"
         if not all(np.isfinite((cx, cy, w, h))) or w < 0 or h < 0 or (w == 0) != (h == 0):
             self.counts["refused"] += 1
             self._warn("track", "ros2: %s: box %s refused (a stop is a 0 x 0 box)",
                        s.track_topic, (cx, cy, w, h))
-            return
+            return TrackReply(False, request, session, "invalid_box",
+                              f"box {(cx, cy, w, h)} refused: sizes must be finite and "
+                              "positive (a stop is a 0 x 0 box)")
         assert s.sessions is not None
         if det.id and det.id not in s.sessions and det.id != s.session_id:
             self.counts["refused"] += 1
             self._warn("track", "ros2: %s: session %r is not a session of stream %r",
                        s.track_topic, det.id, s.stream_id)
-            return
+            return TrackReply(False, request, det.id, "no_session",
+                              f"session {det.id!r} is not a session of stream "
+                              f"{s.stream_id!r}")
         try:
-            if w == 0:  # 0 x 0: stop
+            if request == "stop":
                 if session:
                     self.client.stop(session)
                     if session == s.session_id:
                         s.session_id = None
                 self.counts["stops"] += 1
-                return
+                return TrackReply(True, request, session, None,
+                                  f"stopped session {session}" if session
+                                  else "no session to stop")
             box = (cx - w / 2 + 1.0, cy - h / 2 + 1.0, w, h)  # 0-based centre -> 1-based box
             if session:
                 self.client.reinit(session, box)
                 self.counts["reinits"] += 1
-            else:
-                ack = self.client.start(s.stream_id, box, preset=self.preset,
-                                        overrides=self.overrides)
-                s.session_id = ack.session_id
-                self.counts["starts"] += 1
+                return TrackReply(True, request, session, None,
+                                  f"session {session} re-initialised")
+            ack = self.client.start(s.stream_id, box, preset=self.preset,
+                                    overrides=self.overrides)
+            s.session_id = ack.session_id
+            self.counts["starts"] += 1
+            return TrackReply(True, request, ack.session_id, None,
+                              f"session {ack.session_id} started ({self.preset})")
         except (ServiceError, TimeoutError) as exc:
             self.counts["refused"] += 1
             self._warn("track", "ros2: %s: refused by the service: %s", s.track_topic, exc)
+            code = exc.code if isinstance(exc, ServiceError) else "timeout"
+            return TrackReply(False, request, session, code, str(exc))
+
+    def _reply(self, s: _Stream, header: Any, reply: TrackReply) -> None:
+        s.replies.publish(track_reply(reply, s.stream_id, self.node_name, header))
+        self.counts["replies"] += 1
 
     # ------------------------------------------------------------------ service -> ROS 2
     def _on_result(self, s: _Stream) -> Any:
@@ -474,6 +531,7 @@ class Ros2Bridge:
                 sub.undeclare()
         for s in self.streams.values():
             s.publisher.close()
+            s.replies.close()
         self.diagnostics.close()
         self.node.close()
 
@@ -505,7 +563,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     stop = prepare()
     from arcf.service.transport import open_session
 
-    with service_client(args) as client:
+    client = wait_for_service(args, log, stop)
+    if client is None:
+        return 2
+    with client:
         try:  # refused now rather than at the first track request
             check_preset(client, args.preset, overrides)
         except (ValueError, TimeoutError, ServiceError) as exc:
@@ -530,6 +591,7 @@ __all__ = [
     "Ros2Bridge",
     "Ros2Node",
     "Ros2Publisher",
+    "TrackReply",
     "attachment",
     "detection_array",
     "diagnostic_level",
@@ -537,4 +599,9 @@ __all__ = [
     "main",
     "mangle",
     "topic_key",
+    "track_reply",
 ]
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -20,10 +20,12 @@ ENCODERS = {"h264": "libx264", "h265": "libx265"}
 
 
 def encode_video(images: Iterable[np.ndarray], codec: str = "h264", fps: int = 30,
-                 gop: int = 30, crf: int = 23) -> list[bytes]:
+                 gop: int = 30, crf: int = 23, repeat_headers: bool = False) -> list[bytes]:
     """BGR ``(H, W, 3)`` uint8 images as Annex B access units, one per image: a keyframe
     every ``gop`` images, no B-frames, no scene-cut keyframes (a live camera's low-latency
-    stream, whose keyframes come at a fixed interval)."""
+    stream, whose keyframes come at a fixed interval). ``repeat_headers``: the parameter
+    sets in front of every keyframe, not only the first (what a camera streaming to
+    receivers that join at any time sends)."""
     encoder_name = ENCODERS[codec]
     enc: av.VideoCodecContext | None = None
     units: list[bytes] = []
@@ -34,11 +36,16 @@ def encode_video(images: Iterable[np.ndarray], codec: str = "h264", fps: int = 3
             enc.pix_fmt, enc.framerate = "yuv420p", Fraction(fps)
             if codec == "h264":
                 enc.options = {"g": str(gop), "bf": "0", "preset": "veryfast",
-                               "tune": "zerolatency", "sc_threshold": "0", "crf": str(crf)}
+                               "tune": "zerolatency", "sc_threshold": "0", "crf": str(crf),
+                               "threads": "1",  # one slice per picture, as cameras send
+                               **({"x264-params": "repeat-headers=1"} if repeat_headers
+                                  else {})}
             else:
                 enc.options = {"preset": "ultrafast", "crf": str(crf),
                                "x265-params": f"keyint={gop}:min-keyint={gop}:bframes=0:"
-                                              "scenecut=0:log-level=error"}
+                                              "scenecut=0:log-level=error"
+                                              + (":repeat-headers=1" if repeat_headers
+                                                 else "")}
         frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(image), format="bgr24")
         units += [bytes(p) for p in enc.encode(frame)]
     if enc is not None:

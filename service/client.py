@@ -153,16 +153,19 @@ class TrackingClient:
         seq: int | None = None,
         capture_ts_ns: int | None = None,
         quality: int = 90,
+        size: tuple[int, int] | None = None,
     ) -> int:
         """Publish one frame (a numpy image, encoded here, or already encoded ``data``).
 
         Returns its sequence number (consecutive per stream unless given). Frames are sent with
         the client's ``frame_congestion`` (default DROP: a slow link loses frames rather than
-        stalling the station).
+        stalling the station). ``size``: the (width, height) of encoded ``data`` where the
+        sender knows it (a video unit's, from its stream's parameters), declared in the frame
+        for stations that show or convert boxes without decoding (required for raw data).
         """
         if (image is None) == (data is None):
             raise ValueError("give either image or data")
-        width = height = None
+        width, height = size if size is not None and data is not None else (None, None)
         if image is not None:
             height, width = image.shape[:2]
             if encoding == "jpeg":

@@ -11,7 +11,8 @@ state for one stream (PyAV, which ships FFmpeg in its wheels):
 * a gap in the stream's numbering (a unit lost on the way) or a damaged unit (the decoder
   raises, reports an error while decoding it, or reports that it concealed damage: FFmpeg
   would otherwise hand out a smeared picture) drops the decoder state and waits for the next
-  keyframe:
+  keyframe (which may be the unit right after the gap: a sender that skips the rest of a
+  damaged group of pictures resumes there):
   no box is ever computed on a frame decoded from a broken reference;
 * every outcome is returned with a reason, for the caller to count and report;
 * what it is given is bounded before FFmpeg sees it: an access unit with more than
@@ -31,6 +32,7 @@ from __future__ import annotations
 
 import logging
 import re
+import threading
 from dataclasses import dataclass
 from enum import Enum
 from functools import cached_property
@@ -82,6 +84,9 @@ class Decoded:
     reason: str | None = None
     #: what broke, for ``RESYNC``: ``gap``, ``corrupt`` or ``oversized``
     cause: str | None = None
+    #: for ``FRAME``: the chain broke just before this unit (``gap``), which is a keyframe
+    #: and starts the next one (the resynchronisation is counted, the unit decoded)
+    resynced: str | None = None
 
     @cached_property
     def image(self) -> np.ndarray | None:
@@ -160,11 +165,17 @@ class StreamDecoder:
         for kind, unit in units:
             if kind in PARAMETER_TYPES[self.codec]:
                 self._params[kind] = unit
+        keyframe = any(kind in KEYFRAME_TYPES[self.codec] for kind, _ in units)
+        resynced = None
         if gap and self._ctx is not None:
-            return self._resync("gap", f"access unit {seq} came after {expected}'s place: "
-                                "units were lost; waiting for a keyframe")
+            if not keyframe:
+                return self._resync("gap", f"access unit {seq} came after {expected}'s "
+                                    "place: units were lost; waiting for a keyframe")
+            # the loss ended at a keyframe: the next chain starts with this very unit
+            self._resync("gap", "units were lost before a keyframe")
+            resynced = "gap"
         if self._ctx is None:
-            if not any(kind in KEYFRAME_TYPES[self.codec] for kind, _ in units):
+            if not keyframe:
                 self._count(Outcome.WAITING.value)
                 return Decoded(Outcome.WAITING, reason="waiting for a keyframe")
             present = {kind for kind, _ in units}
@@ -205,4 +216,59 @@ class StreamDecoder:
                                 f"{self.max_pixels} pixels")
         self._count(Outcome.FRAME.value)
         return Decoded(Outcome.FRAME, picture=frame,
-                       seq=seq if frame.pts is None else int(frame.pts))
+                       seq=seq if frame.pts is None else int(frame.pts), resynced=resynced)
+
+
+class PictureSize:
+    """The picture size of a stream of access units, for stations that convert boxes
+    without decoding the stream (the MAVLink camera, which needs it only when a command
+    comes).
+
+    :meth:`feed` keeps the latest parameter sets and keyframe (a scan for start codes, no
+    decoding); :meth:`read` decodes that keyframe once per set of parameter sets, with the
+    same ``max_pixels`` bound as :class:`StreamDecoder`, and remembers the answer."""
+
+    def __init__(self, codec: str, max_pixels: int = 8_847_360) -> None:
+        if codec not in KEYFRAME_TYPES:
+            raise ValueError(f"codec must be 'h264' or 'hevc', got {codec!r}")
+        self.codec, self.max_pixels = codec, max_pixels
+        self._lock = threading.Lock()  # fed by a subscriber's thread, read by another
+        self._params: dict[int, bytes] = {}
+        self._keyframe: bytes | None = None
+        self._known: tuple[tuple[bytes, ...], tuple[int, int] | None] | None = None
+
+    def feed(self, data: bytes) -> None:
+        try:
+            units = nal_units(data, self.codec)
+        except ValueError:
+            return
+        with self._lock:
+            for kind, unit in units:
+                if kind in PARAMETER_TYPES[self.codec]:
+                    self._params[kind] = unit
+            if any(kind in KEYFRAME_TYPES[self.codec] for kind, _ in units):
+                self._keyframe = data
+
+    def read(self) -> tuple[int, int] | None:
+        """(width, height), or None before a keyframe and its parameter sets came, or when
+        they do not decode within ``max_pixels``."""
+        with self._lock:
+            keyframe, key = self._keyframe, tuple(u for _, u in sorted(self._params.items()))
+        if keyframe is None or not key:
+            return None
+        if self._known is not None and self._known[0] == key:
+            return self._known[1]
+        size = None
+        ctx = cast(av.VideoCodecContext, av.CodecContext.create(self.codec, "r"))
+        ctx.thread_type = "NONE"
+        ctx.options = {"max_pixels": str(self.max_pixels)}
+        with av.logging.Capture(local=True):  # a broken keyframe says so by giving nothing
+            try:
+                frames = ctx.decode(av.Packet(b"".join(key) + keyframe))
+                frames += ctx.decode(None)
+                if frames:
+                    size = (frames[0].width, frames[0].height)
+            except (av.FFmpegError, ValueError):
+                size = None
+        self._known = (key, size)
+        return size

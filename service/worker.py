@@ -747,6 +747,8 @@ class Worker:
         decode_s = time.perf_counter() - t0
         self.metrics.DECODE.observe(decode_s)
         if out.outcome is Outcome.FRAME:
+            if out.resynced is not None:  # a gap that ended at this keyframe
+                self.metrics.VIDEO_RESYNCS.labels(cause=out.resynced).inc()
             seq = out.seq if out.seq is not None else seq
             capture_ts_ns, received_ns = times.pop(seq, (capture_ts_ns, received_ns))
             return _Picture(seq, capture_ts_ns, received_ns, decode_s, None, video=out)

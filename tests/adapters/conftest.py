@@ -11,6 +11,20 @@ class _Watch:
     def close(self) -> None:
         pass
 
+    def undeclare(self) -> None:
+        pass
+
+
+class _Session:
+    """The Zenoh session's part the stream taps use: a subscriber on the video key."""
+
+    def __init__(self, callbacks: dict[str, Any]) -> None:
+        self.callbacks = callbacks
+
+    def declare_subscriber(self, key: str, callback: Any) -> _Watch:
+        self.callbacks["video"] = callback
+        return _Watch()
+
 
 class OfflineClient:
     """What the endpoint asks of a service client before any command: its result and frame
@@ -18,6 +32,7 @@ class OfflineClient:
 
     def __init__(self) -> None:
         self.callbacks: dict[str, Any] = {}
+        self.session = _Session(self.callbacks)
 
     def frames(self, stream_id: str, callback: Any) -> _Watch:
         self.callbacks["frames"] = callback

@@ -29,6 +29,7 @@ from arcf.adapters.ros2 import (
 from arcf.data import data_root
 from arcf.eval import load_dataset
 from arcf.loadtools.procs import ServiceProcess
+from arcf.loadtools.waiting import wait_until
 from arcf.schemas import Result
 from arcf.service.client import TrackingClient
 from arcf.service.transport import open_session
@@ -232,6 +233,7 @@ def test_ros2_nodes_track_through_the_bridge() -> None:
     node = open_session("client", connect=[service.endpoint])  # the ROS 2 nodes
     received: list[tuple[bytes, bytes | None]] = []
     health: list[DiagnosticStatus] = []
+    replies: list[DiagnosticArray] = []
     results: list[Result] = []
     try:
         out_key = (f"0/arcf/cam1/detections/vision_msgs::msg::dds_::Detection2DArray_/"
@@ -242,6 +244,16 @@ def test_ros2_nodes_track_through_the_bridge() -> None:
         dsub = node.declare_subscriber(
             topic_key(0, "/diagnostics", rt.DIAGNOSTIC_ARRAY),
             lambda s: health.extend(DiagnosticArray.deserialize(s.payload.to_bytes()).status))
+        rpsub = node.declare_subscriber(
+            topic_key(0, "/arcf/cam1/track_reply", rt.DIAGNOSTIC_ARRAY),
+            lambda s: replies.append(DiagnosticArray.deserialize(s.payload.to_bytes())))
+
+        def reply_to(sec: int) -> tuple[DiagnosticStatus, dict[str, str]]:
+            """The answer to the request stamped ``sec`` s (its header comes back)."""
+            wait_until(lambda: [r for r in list(replies) if r.header.stamp.sec == sec],
+                       timeout=30, what=f"the reply to request {sec}")
+            ((status,),) = [r.status for r in list(replies) if r.header.stamp.sec == sec]
+            return status, {kv.key: kv.value for kv in status.values}
 
         def about_image(i: int) -> list[tuple[bytes, bytes | None]]:
             """The detections published for image ``i`` (its header): a session's stale
@@ -268,26 +280,33 @@ def test_ros2_nodes_track_through_the_bridge() -> None:
 
         # a track request from ROS 2: the first frame's ground truth, 0-based centre
         x, y, w, h = gt[0]
-        request = Detection2D(Header(Time(0, 0), ""), [],
+        request = Detection2D(Header(Time(1, 0), "req"), [],
                               BoundingBox2D(Pose2D(Point2D(x - 1 + w / 2, y - 1 + h / 2), 0.0),
                                             w, h), "")
         node.put(track_key, request.serialize(), attachment=attachment(1, time.time_ns(), gid))
-        deadline = time.monotonic() + 10
-        while bridge.counts["starts"] < 1 and time.monotonic() < deadline:
-            time.sleep(0.02)
-        assert bridge.counts["starts"] == 1
+        started, values = reply_to(1)  # answered: OK, with the session it started
+        assert bridge.counts["starts"] == 1 and started.level == 0
+        assert values["request"] == "start" and values["code"] == ""
+        assert [s.session_id for s in client.status("cam1").sessions] == [values["session_id"]]
+        assert started.name == "arcf: cam1 track" and started.hardware_id == "cam1"
 
-        # refused, the session untouched: a session of another stream, a negative size
+        # refused, the session untouched: a session of another stream, a negative size,
+        # something that is no Detection2D; each answered ERROR with its reason
         other = client.start("elsewhere", (10.0, 10.0, 40.0, 40.0), preset="bacf")
-        for bad in (Detection2D(Header(Time(0, 0), ""), [], request.bbox, other.session_id),
-                    Detection2D(Header(Time(0, 0), ""), [],
-                                BoundingBox2D(Pose2D(Point2D(50.0, 50.0), 0.0), -4.0, 10.0),
-                                "")):
+        for sec, bad in ((2, Detection2D(Header(Time(2, 0), ""), [], request.bbox,
+                                         other.session_id)),
+                         (3, Detection2D(Header(Time(3, 0), ""), [],
+                                         BoundingBox2D(Pose2D(Point2D(50.0, 50.0), 0.0), -4.0,
+                                                       10.0), ""))):
             node.put(track_key, bad.serialize(), attachment=attachment(1, time.time_ns(), gid))
-        deadline = time.monotonic() + 10
-        while bridge.counts["refused"] < 2 and time.monotonic() < deadline:
-            time.sleep(0.02)
+            refusal, values = reply_to(sec)
+            assert refusal.level == 2 and values["code"] == (
+                "no_session" if sec == 2 else "invalid_box"), refusal.message
+        node.put(track_key, b"\x00\x01\x00\x00 no detection")
+        wait_until(lambda: any(r.status[0].values[2].value == "invalid_request"
+                               for r in list(replies)), timeout=30, what="a garbage reply")
         assert bridge.counts["refused"] == 2 and bridge.counts["stops"] == 0
+        assert bridge.counts["bad_track"] == 1 and bridge.counts["replies"] == 4
         assert {s.stream_id for s in client.status().sessions} == {"cam1", "elsewhere"}
         client.stop(other.session_id)
 
@@ -299,9 +318,7 @@ def test_ros2_nodes_track_through_the_bridge() -> None:
                                     list(data[i % len(data)]))
             node.put(image_key, image.serialize(),
                      attachment=attachment(i + 1, time.time_ns(), gid))
-            deadline = time.monotonic() + 15
-            while not about_image(i) and time.monotonic() < deadline:
-                time.sleep(0.01)
+            wait_until(lambda: about_image(i), timeout=15, what=f"image {i}'s detections")
 
         for i in range(len(data)):
             send(i)
@@ -331,14 +348,12 @@ def test_ros2_nodes_track_through_the_bridge() -> None:
 
         # the images stop: the service's stale notice becomes an empty array stamped with
         # its own time (nothing to follow) and a STALE report on /diagnostics
-        deadline = time.monotonic() + 30
-        while not [r for r in results if r.status == "stale"] and time.monotonic() < deadline:
-            time.sleep(0.02)
+        wait_until(lambda: [r for r in results if r.status == "stale"], timeout=30,
+                   what="the service's stale notice")
         (notice, *_) = [r for r in results if r.status == "stale"]
         assert notice.frame_seq == len(data) - 1 and notice.code == "no_frames"
-        deadline = time.monotonic() + 10
-        while not [h for h in list(health) if h.level == STALE] and time.monotonic() < deadline:
-            time.sleep(0.02)
+        wait_until(lambda: [h for h in list(health) if h.level == STALE], timeout=10,
+                   what="a STALE report")
         (report, *_) = [h for h in list(health) if h.level == STALE]
         assert report.hardware_id == "cam1" and "no frame" in report.message
         assert {kv.key: kv.value for kv in report.values}["status"] == "stale"
@@ -352,23 +367,24 @@ def test_ros2_nodes_track_through_the_bridge() -> None:
         ((payload, _),) = about_image(len(data))
         (d,) = Detection2DArray.deserialize(payload).detections
         assert d.id == session
-        deadline = time.monotonic() + 10
-        while not [h for h in health[after:] if h.level != STALE] and \
-                time.monotonic() < deadline:
-            time.sleep(0.02)
-        assert [h for h in health[after:] if h.level != STALE]
+        wait_until(lambda: [h for h in health[after:] if h.level != STALE], timeout=10,
+                   what="a report that leaves STALE")
 
         # stop from ROS 2 (a box of size 0): the session ends, an empty array says so
-        stop = Detection2D(Header(Time(0, 0), ""), [],
+        stop = Detection2D(Header(Time(4, 0), ""), [],
                            BoundingBox2D(Pose2D(Point2D(0.0, 0.0), 0.0), 0.0, 0.0), "")
         node.put(track_key, stop.serialize(), attachment=attachment(2, time.time_ns(), gid))
-        deadline = time.monotonic() + 10
-        while len(about_image(len(data))) < 2 and time.monotonic() < deadline:
-            time.sleep(0.02)  # the stop's array: about the session's last image
+        stopped, values = reply_to(4)
+        assert stopped.level == 0 and values == {"request": "stop", "session_id": session,
+                                                 "code": "", "stream_id": "cam1"}
+        # the stop's array: about the session's last image
+        wait_until(lambda: len(about_image(len(data))) >= 2, timeout=10,
+                   what="the stop's empty array")
         assert Detection2DArray.deserialize(about_image(len(data))[-1][0]).detections == []
         assert client.status("cam1").sessions == []
         sub.undeclare()
         dsub.undeclare()
+        rpsub.undeclare()
         rsub.close()
     finally:
         bridge.close()

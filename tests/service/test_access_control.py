@@ -94,7 +94,10 @@ def test_only_authorised_stations_track(tmp_path: Path) -> None:
             # the stimulus: the impostor's declarations have time to spread (nothing to wait
             # for: the router denies them; a slow machine only makes the checks below weaker)
             time.sleep(0.3)
-            with TrackingClient(session=station) as good, TrackingClient(session=intruder) as bad:
+            # every frame must be answered: the station publishes with BLOCK (with live
+            # video's DROP, a stalled machine lets Zenoh drop one)
+            with TrackingClient(session=station, frame_congestion="block") as good, \
+                    TrackingClient(session=intruder) as bad:
                 results = good.results("cam")
                 ack = good.start("cam", seq.init_box, preset="bacf", frame_seq=0)
                 replies = [r.ok.payload.to_bytes() for r in station.get(

@@ -70,6 +70,19 @@ def test_a_lost_unit_resynchronises_at_the_next_keyframe(h264: list[bytes]) -> N
     assert dec.counts["resync_gap"] == 1 and dec.counts["waiting_for_keyframe"] == 5
 
 
+def test_a_gap_that_ends_at_a_keyframe_resumes_there(h264: list[bytes]) -> None:
+    """A sender that skips the rest of a damaged group of pictures (arcf-ingest does) sends
+    the next keyframe right after the hole: decoded at once, the resynchronisation counted."""
+    dec = StreamDecoder("h264")
+    out = {i: dec.decode(i, u) for i, u in enumerate(h264) if not GOP + 3 <= i < 2 * GOP}
+    assert out[2 * GOP].outcome is Outcome.FRAME and out[2 * GOP].resynced == "gap"
+    assert all(out[i].outcome is Outcome.FRAME and out[i].resynced is None
+               for i in out if i != 2 * GOP)
+    for i, want in zip(range(2 * GOP, len(h264)), plain(h264)[2 * GOP:], strict=True):
+        np.testing.assert_array_equal(out[i].image, want)
+    assert dec.counts["resync_gap"] == 1 and dec.counts.get("waiting_for_keyframe", 0) == 0
+
+
 def test_a_damaged_unit_is_not_decoded_into_a_smeared_picture(h264: list[bytes]) -> None:
     dec = StreamDecoder("h264")
     broken = bytearray(h264[13])
