@@ -49,6 +49,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import functools
 import logging
 import math
 import os
@@ -78,6 +79,7 @@ from ._command import (
     prepare,
     wait_for_service,
 )
+from .gimbal import FollowSettings, GimbalFollower, GimbalTarget
 from .tap import DEFAULT_VIDEO_KEY, StreamTap, TapFrame
 
 log = logging.getLogger(__name__)
@@ -132,6 +134,8 @@ class CameraConfig:
     stream_id: str
     component_id: int
     video: VideoStream | None = None
+    #: the gimbal its session steers to keep the target centred (None: none)
+    follow: GimbalTarget | None = None
 
 
 @dataclass
@@ -144,6 +148,8 @@ class _Camera:
     video_size: PictureSize | None = None
     #: monotonic time of the last frame
     frame_at: float = 0.0
+    #: turns the session's boxes into gimbal rate commands (``CameraConfig.follow``)
+    follower: GimbalFollower | None = None
     session_id: str | None = None
     mode: int = mav.CAMERA_TRACKING_MODE_NONE
     result: Result | None = None
@@ -333,6 +339,13 @@ class MavlinkCameras:
             _Camera(c, mav.MAVLink(self.conn, srcSystem=system_id, srcComponent=c.component_id),
                     number=i + 1, status_interval_s=status_interval_s)
             for i, c in enumerate(cameras)]
+        for cam in self.cameras:
+            f = cam.config.follow
+            if f is not None:
+                cam.follower = GimbalFollower(
+                    functools.partial(self._send, cam), (system_id, cam.config.component_id),
+                    (f.system, f.component), gimbal_device_id=f.device_id,
+                    settings=f.settings, max_command_hz=f.max_command_hz)
         self.conn.mav.robust_parsing = True  # bad bytes come back as BAD_DATA, counted
         self.signed = signing_key is not None
         if signing_key is not None:
@@ -378,15 +391,22 @@ class MavlinkCameras:
             with self._state_lock:
                 if result.session_id != cam.session_id:
                     return  # another station's session on the same stream
-                if result.status == ResultStatus.STOPPED:
+                stopped = result.status == ResultStatus.STOPPED
+                if stopped:
                     cam.session_id, cam.result = None, None
                     cam.mode = mav.CAMERA_TRACKING_MODE_NONE
                     if result.code is not None:
                         self._statustext(cam, f"tracking ended: {result.code.value}")
-                    return
-                cam.result, cam.heard_at = result, time.monotonic()
-            # a stale notice (or the first result after one): the station hears it now
-            self._announce(cam, time.monotonic())
+                else:
+                    cam.result, cam.heard_at = result, time.monotonic()
+                frame = cam.last_frame
+            if cam.follower is not None:  # the gimbal follows a box, or is let go
+                size = ((frame.width, frame.height) if frame is not None and frame.width
+                        and frame.height else self._sizes.get(cam.config.stream_id))
+                cam.follower.on_result(result, size, time.monotonic())
+            if not stopped:
+                # a stale notice (or the first result after one): the station hears it now
+                self._announce(cam, time.monotonic())
         return seen
 
     def stale(self, cam: _Camera, now: float) -> str | None:
@@ -492,6 +512,8 @@ class MavlinkCameras:
                         "goes on)", now - self._last_station)
         for cam in self.cameras:
             self._announce(cam, now)  # the adapter's own timeout passed, or a session ended
+            if cam.follower is not None:
+                cam.follower.tick(now)  # a silent session: the gimbal is let go
             if cam.status_interval_s > 0 and now >= cam.next_status:
                 cam.next_status = max(cam.next_status + cam.status_interval_s, now - 1.0)
                 self._send(cam, self._status(cam, now))
@@ -839,6 +861,8 @@ class MavlinkCameras:
         with self._state_lock:
             cam.session_id, cam.result, cam.mode = ack.session_id, None, mode
             cam.heard_at = time.monotonic()  # the first result is on its way from here
+        if cam.follower is not None:
+            cam.follower.take_control()
         return mav.MAV_RESULT_ACCEPTED, None
 
 
@@ -895,6 +919,21 @@ def main(argv: Sequence[str] | None = None) -> int:
                     "the station listens: 5600 for QGroundControl) or udp://:PORT (MPEG-TS)")
     ap.add_argument("--video-key", default=DEFAULT_VIDEO_KEY,
                     help="the service's video_key ('' for none): CompressedVideo streams")
+    ap.add_argument("--follow", action="append", default=[], metavar="STREAM",
+                    help="keep this camera's target centred: its session's boxes become "
+                    "gimbal rate commands (Gimbal Protocol v2), only while tracking")
+    ap.add_argument("--gimbal-manager", default="1/1", metavar="SYSID/COMPID",
+                    help="the gimbal manager to command (default %(default)s: the autopilot)")
+    ap.add_argument("--gimbal-device", type=int, default=0,
+                    help="the gimbal device id the manager steers (default 0: all)")
+    ap.add_argument("--hfov", type=float, default=60.0,
+                    help="the camera's horizontal field of view, degrees (default %(default)s)")
+    ap.add_argument("--follow-gain", type=float, default=2.0,
+                    help="rate per degree of error, 1/s (default %(default)s)")
+    ap.add_argument("--follow-max-rate", type=float, default=60.0,
+                    help="fastest rate commanded, deg/s (default %(default)s)")
+    ap.add_argument("--follow-hz", type=float, default=30.0,
+                    help="most gimbal commands a second (default %(default)s)")
     args = ap.parse_args(argv)
     overrides = parse_overrides(ap, args.set)
     try:
@@ -914,7 +953,21 @@ def main(argv: Sequence[str] | None = None) -> int:
     unknown = set(videos) - {c.stream_id for c in cameras}
     if unknown:
         ap.error(f"--video for streams that are no --camera: {sorted(unknown)}")
-    cameras = [CameraConfig(c.stream_id, c.component_id, videos.get(c.stream_id))
+    follow: GimbalTarget | None = None
+    if args.follow:
+        system, _, component = args.gimbal_manager.partition("/")
+        try:
+            follow = GimbalTarget(int(system), int(component), args.gimbal_device,
+                                  FollowSettings(hfov_deg=args.hfov, gain=args.follow_gain,
+                                                 max_rate_dps=args.follow_max_rate),
+                                  args.follow_hz)
+        except ValueError as exc:
+            ap.error(f"--follow: {exc}")
+        unknown = set(args.follow) - {c.stream_id for c in cameras}
+        if unknown:
+            ap.error(f"--follow for streams that are no --camera: {sorted(unknown)}")
+    cameras = [CameraConfig(c.stream_id, c.component_id, videos.get(c.stream_id),
+                            follow if c.stream_id in args.follow else None)
                for c in cameras]
     stop = prepare()
     client = wait_for_service(args, log, stop)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from types import SimpleNamespace
 from typing import Any
 
 import pytest
@@ -41,6 +42,12 @@ class OfflineClient:
     def results(self, stream_id: str, callback: Any) -> _Watch:
         self.callbacks["results"] = callback
         return _Watch()
+
+    def start(self, stream_id: str, box: Any, preset: str = "arcf-hc", **kwargs: Any) -> Any:
+        """A session started at once, named ``s<n>``."""
+        self.started: list[tuple[str, tuple[float, ...], str]] = [
+            *getattr(self, "started", []), (stream_id, tuple(box), preset)]
+        return SimpleNamespace(session_id=f"s{len(self.started)}")
 
 
 @pytest.fixture

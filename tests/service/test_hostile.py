@@ -396,7 +396,10 @@ def test_a_box_outside_its_frame_ends_the_session_visibly(strict, clip) -> None:
         (error,) = [r for r in watch.results if r.status.value == "error"]
         assert error.code.value == "invalid_box" and error.frame_seq == 0
         assert stopped.code.value == "invalid_box" and "does not fit frame 0" in stopped.message
-        assert client.status(stream_id="outside").sessions == []
+        # the worker ends the session and tells the control plane, which the status reads:
+        # the two travel apart, so the status is waited for (a deadline, not a delay)
+        wait_until(lambda: client.status(stream_id="outside").sessions == [], timeout=30,
+                   what="the ended session gone from the status")
 
 
 def test_frame_seq_in_the_past_present_and_future(service, clip) -> None:
