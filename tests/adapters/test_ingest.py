@@ -180,6 +180,10 @@ def _ingest_and_check(service, source: str, sender_factory, camera, stream: str)
             # the last units may wait in the receiver until the source goes quiet
             wait_until(lambda: ingest.counts["read_timeouts"] >= 1, timeout=30,
                        what="the source went quiet")
+            ingest.close()
+            # frames reach the station after the ingest counted them published
+            wait_until(lambda: len(watch.snapshot()) >= ingest.counts["published"],
+                       timeout=30, what="every published frame seen")
             frames = watch.snapshot()
         finally:
             ingest.close()
