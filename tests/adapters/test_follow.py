@@ -147,10 +147,16 @@ def test_gimbal_protocol_v2_on_a_real_link() -> None:
             return len(got) >= 7
 
         wait_until(receive, timeout=30, what="the follower's messages")
-        time.sleep(0.3)  # the window in which an eighth message would arrive (none may)
-        while (msg := autopilot.recv_match(blocking=False)) is not None:
-            if msg.get_type() == "GIMBAL_MANAGER_SET_PITCHYAW":
+        # a sentinel on the same socket: whatever the follower sent arrives before it
+        camera.mav.heartbeat_send(mav.MAV_TYPE_CAMERA, mav.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+
+        def sentinel() -> bool:
+            msg = autopilot.recv_match(blocking=True, timeout=0.1)
+            if msg is not None and msg.get_type() == "GIMBAL_MANAGER_SET_PITCHYAW":
                 got.append(msg)
+            return msg is not None and msg.get_type() == "HEARTBEAT"
+
+        wait_until(sentinel, timeout=30, what="the sentinel after the follower's messages")
     finally:
         autopilot.close()
         camera.close()
@@ -276,7 +282,12 @@ def test_a_mavlink_camera_with_follow_steers_its_gimbal(offline_client: Any) -> 
             on_result(_result("tracking", "lost", box).model_copy(
                 update={"session_id": "s1", "stream_id": "cam"}))
         wait_until(lambda: len(commands()) == 2, timeout=30, what="the stop")
-        time.sleep(0.3)  # the window in which a third command would arrive (none may)
+        # the camera's next heartbeat goes out after anything the follower sent: once it is
+        # in, a third command would be too (none may be)
+        t_stop = time.monotonic()
+        wait_until(lambda: [h for h in station.since(t_stop, "HEARTBEAT")
+                            if h.get_srcComponent() == 100], timeout=30,
+                   what="a heartbeat after the stop")
         stop = commands()[-1]
         assert len(commands()) == 2 and stop.yaw_rate == 0.0 and stop.pitch_rate == 0.0
         assert cam.follower is not None and cam.follower.counts["stops"] == 1
