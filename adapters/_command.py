@@ -12,6 +12,7 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 from arcf.service.client import TrackingClient
+from arcf.service.settings import LOG_FORMAT
 
 #: the service's endpoint on its embedded default
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
@@ -82,7 +83,7 @@ def wait_for_service(args: argparse.Namespace, logger: logging.Logger, stop: thr
 def prepare() -> threading.Event:
     """Log to stderr with timestamps; return an event that SIGINT or SIGTERM sets, for the
     command to wait on and then close its adapter cleanly."""
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
+    logging.basicConfig(level=logging.INFO, format=LOG_FORMAT)
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())

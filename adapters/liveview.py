@@ -57,9 +57,15 @@ from arcf.service.video import CODECS, Outcome, StreamDecoder
 from ._command import add_service_arguments, prepare, wait_for_service
 from .record import PALETTE
 from .tap import DEFAULT_VIDEO_KEY, StreamTap, TapFrame
+from .viewcontrol import ViewControl
 
 log = logging.getLogger(__name__)
 _STREAM = re.compile(r"^/api/streams/([A-Za-z0-9_.-]{1,64})/(frame\.jpg|results)$")
+#: the control actions: start a session on a stream; re-initialise or stop one
+_START = re.compile(r"^/api/streams/([A-Za-z0-9_.-]{1,64})/sessions$")
+_SESSION = re.compile(r"^/api/sessions/([A-Za-z0-9_.-]{1,64})/(reinit|stop)$")
+#: bytes a control request's body may have
+MAX_BODY = 4096
 _STATIC = {"/": ("view.html", "text/html; charset=utf-8"),
            "/view.js": ("view.js", "text/javascript; charset=utf-8"),
            "/view.css": ("view.css", "text/css; charset=utf-8")}
@@ -139,17 +145,30 @@ class Watch:
         self.max_fps, self.max_width, self.max_pixels = max_fps, max_width, max_pixels
         self.viewers = 0
         self.changed = threading.Condition()
-        #: the latest rendered picture (JPEG) and its number, for the MJPEG viewers
+        #: the latest rendered picture (JPEG) and its number, for the picture viewers
         self.jpeg: bytes | None = None
         self.rendered = 0
+        #: the rendered frame's key (see ``by_time``), its number in the service's numbering
+        #: where the view knows it (None on the video key), and its size before scaling
+        self.rendered_key: int | None = None
         self.rendered_seq: int | None = None
+        self.rendered_size: tuple[int, int] | None = None
+        #: frames and results are matched by capture time on the video key, by number
+        #: otherwise. The video key's units carry no number: the service numbers them from
+        #: its own subscription, this view from its own, so only the unit's timestamp (every
+        #: result's ``capture_ts_ns``) names the same picture on both sides
+        self.by_time = False
         #: the results drawn on that picture (what a viewer sees)
         self.drawn: list[Result] = []
         #: every result heard, numbered, for the results (SSE) viewers
         self.results: deque[tuple[int, str]] = deque(maxlen=_HISTORY)
         self.result_count = 0
+        #: recent frames by key, oldest first
         self._frames: OrderedDict[int, TapFrame | np.ndarray] = OrderedDict()
-        self._by_session: dict[str, OrderedDict[int, Result]] = {}
+        #: each session's recent results, oldest first
+        self._by_session: dict[str, deque[Result]] = {}
+        #: capture time of the video units waiting to be decoded, by the view's unit number
+        self._unit_times: OrderedDict[int, int] = OrderedDict()
         #: sessions whose stream stopped (their ``stale`` notice), until a frame's result
         self._stale: dict[str, Result] = {}
         #: changes of ``_stale``: the picture is drawn again when it changes, frames or not
@@ -175,11 +194,13 @@ class Watch:
         """Zenoh's callback: a video unit is queued for the decoding thread (decoding here
         would hold Zenoh's thread, and one still decoding when the process exits aborts
         it); a picture is kept as it came, decoded only if rendered."""
+        if frame.source == "compressed_video":
+            self.by_time = True
         if frame.is_video:
             self._units.append(frame)
             self._unit_ready.set()
             return
-        self._keep(frame.seq, frame)
+        self._keep(frame.capture_ts_ns if self.by_time else frame.seq, frame)
 
     def _decode_loop(self) -> None:
         """Every video unit through the stream's decoder, in order; the picture is kept."""
@@ -191,15 +212,26 @@ class Watch:
                 codec = CODECS[frame.encoding]
                 if self._decoder is None or self._decoder.codec != codec:
                     self._decoder = StreamDecoder(codec, self.max_pixels)
+                self._unit_times[frame.seq] = frame.capture_ts_ns
+                while len(self._unit_times) > _VIDEO_QUEUE:
+                    self._unit_times.popitem(last=False)
                 out = self._decoder.decode(frame.seq, frame.payload)
                 if out.outcome is Outcome.FRAME and out.image is not None:
-                    self._keep(out.seq if out.seq is not None else frame.seq, out.image)
+                    seq = out.seq if out.seq is not None else frame.seq
+                    key = self._unit_times.get(seq, frame.capture_ts_ns) if self.by_time else seq
+                    self._keep(key, out.image)
 
-    def _keep(self, seq: int, item: TapFrame | np.ndarray) -> None:
+    def _keep(self, key: int, item: TapFrame | np.ndarray) -> None:
         with self._lock:
-            self._frames[seq] = item
+            if self._frames and key <= next(reversed(self._frames)):
+                self._frames.clear()  # a restarted numbering (or clock): the old frames go
+            self._frames[key] = item
             while len(self._frames) > _RECENT:
                 self._frames.popitem(last=False)
+
+    def key_of(self, result: Result) -> int:
+        """The key of the frame a result is about (``by_time``)."""
+        return result.capture_ts_ns if self.by_time else result.frame_seq
 
     def _on_result(self, result: Result) -> None:
         with self._lock:
@@ -214,10 +246,8 @@ class Watch:
             if status == "stopped":  # nothing more to wait for or to draw
                 self._by_session.pop(result.session_id, None)
             elif status != "stale":
-                recent = self._by_session.setdefault(result.session_id, OrderedDict())
-                recent[result.frame_seq] = result
-                while len(recent) > _RECENT:
-                    recent.popitem(last=False)
+                self._by_session.setdefault(result.session_id,
+                                            deque(maxlen=_RECENT)).append(result)
         event = json.dumps({
             "session_id": result.session_id, "frame_seq": result.frame_seq,
             "status": result.status.value, "box": _finite(result.box),
@@ -231,33 +261,35 @@ class Watch:
             self.changed.notify_all()
 
     def _pick(self) -> tuple[int, TapFrame | np.ndarray, list[tuple[int, Result]]] | None:
-        """The frame to render: the newest one every session has answered (so the boxes are
-        that frame's), else, for a stream without answers, the newest one. A session whose
-        last answer is older than every frame kept (it lags far behind, or ended unseen) does
-        not hold the picture back. The same frame again when a session went stale or came
-        back (its box is drawn differently); a stale session's last result is marked
-        ``stale`` (its notice's status and message, its own box)."""
+        """The frame to render, by key: the newest one every session has answered (so the
+        boxes are that frame's), else, for a stream without answers, the newest one. A
+        session whose last answer is older than every frame kept (it lags far behind, or
+        ended unseen) does not hold the picture back. The same frame again when a session
+        went stale or came back (its box is drawn differently); a stale session's last
+        result is marked ``stale`` (its notice's status and message, its own box)."""
         with self._lock:
             if not self._frames:
                 return None
             oldest = next(iter(self._frames))
-            answered = [max(r) for r in self._by_session.values() if r and max(r) >= oldest]
-            candidates = [s for s in self._frames if not answered or s <= min(answered)]
-            seq = max(candidates) if candidates else next(reversed(self._frames))
-            if seq == self.rendered_seq and self._marks == self.rendered_marks:
+            last = {sid: max(self.key_of(r) for r in recent)
+                    for sid, recent in self._by_session.items() if recent}
+            answered = [k for k in last.values() if k >= oldest]
+            candidates = [k for k in self._frames if not answered or k <= min(answered)]
+            key = max(candidates) if candidates else next(reversed(self._frames))
+            if key == self.rendered_key and self._marks == self.rendered_marks:
                 return None
             self.rendered_marks = self._marks
             results = []
             for sid, recent in self._by_session.items():
-                older = [k for k in recent if k <= seq]
+                older = [r for r in recent if self.key_of(r) <= key]
                 if older:
-                    r = recent[max(older)]
+                    r = max(older, key=self.key_of)
                     notice = self._stale.get(sid)
                     if notice is not None:
                         r = r.model_copy(update={"status": notice.status,
                                                  "message": notice.message})
                     results.append((self._colours[sid], r))
-            return seq, self._frames[seq], results
+            return key, self._frames[key], results
 
     def _render_loop(self) -> None:
         period = 1.0 / self.max_fps
@@ -265,13 +297,14 @@ class Watch:
             picked = self._pick()
             if picked is None:
                 continue
-            seq, item, results = picked
+            key, item, results = picked
             try:
                 picture = (item if isinstance(item, np.ndarray)
                            else _picture(item, self.max_pixels))
             except ValueError as exc:
-                log.debug("frame %d of %s not drawn: %s", seq, self.stream_id, exc)
+                log.debug("frame %d of %s not drawn: %s", key, self.stream_id, exc)
                 continue
+            size = (int(picture.shape[1]), int(picture.shape[0]))
             scale = min(1.0, self.max_width / picture.shape[1])
             if scale < 1.0:
                 picture = cv2.resize(picture, None, fx=scale, fy=scale,
@@ -283,7 +316,8 @@ class Watch:
             if not ok:
                 continue
             with self.changed:
-                self.jpeg, self.rendered_seq = buf.tobytes(), seq
+                self.jpeg, self.rendered_key, self.rendered_size = buf.tobytes(), key, size
+                self.rendered_seq = None if self.by_time else key
                 self.drawn = [r for _, r in results]
                 self.rendered += 1
                 self.changed.notify_all()
@@ -324,7 +358,8 @@ class LiveView:
     def __init__(self, client: TrackingClient, host: str = "127.0.0.1", port: int = 8090, *,
                  max_fps: float = 5.0, max_width: int = 960,
                  video_key: str | None = DEFAULT_VIDEO_KEY, max_viewers: int = 16,
-                 max_pixels: int = 4096 * 2160) -> None:
+                 max_pixels: int = 4096 * 2160, allow_control: bool = False,
+                 allowed_hosts: Sequence[str] = ()) -> None:
         if not (0 < max_fps <= 30 and 64 <= max_width <= 4096 and max_viewers >= 1
                 and max_pixels >= 1):
             raise ValueError("max_fps must be in (0, 30], max_width in [64, 4096], "
@@ -340,6 +375,8 @@ class LiveView:
         #: what was refused or dropped, by reason (for tests and logs)
         self.counts: dict[str, int] = {}
         self._status: tuple[float, bytes] = (0.0, b"")
+        self.control = ViewControl(client, enabled=allow_control, allowed_hosts=allowed_hosts,
+                                   count=self.count)
         view = self
 
         class Handler(BaseHTTPRequestHandler):
@@ -351,6 +388,9 @@ class LiveView:
 
             def do_GET(self) -> None:
                 view.handle(self)
+
+            def do_POST(self) -> None:
+                view.handle_post(self)
 
         self.server = _BoundedServer((host, port), Handler, self)
         self.server.daemon_threads = True
@@ -410,6 +450,9 @@ class LiveView:
                        resources.files("adapters").joinpath("static", name).read_bytes())
         elif path == "/api/streams":
             self._send(req, HTTPStatus.OK, "application/json", self._streams())
+        elif path == "/api/config":
+            self._send(req, HTTPStatus.OK, "application/json",
+                       json.dumps(self.control.config()).encode())
         elif (m := _STREAM.match(path)) is not None:
             client = req.client_address[0]
             watch = self._watch(m.group(1), client)
@@ -433,6 +476,39 @@ class LiveView:
         else:
             self._send(req, HTTPStatus.NOT_FOUND, "text/plain", b"not found\n")
 
+    def handle_post(self, req: BaseHTTPRequestHandler) -> None:
+        """A control request (``viewcontrol``): start a session on a stream, re-initialise
+        or stop a session. Its body is read only when its length is declared and small."""
+        path = req.path.split("?", 1)[0]
+        if (m := _START.match(path)) is not None:
+            action, target = "start", m.group(1)
+        elif (m := _SESSION.match(path)) is not None:
+            action, target = m.group(2), m.group(1)
+        else:
+            self._send(req, HTTPStatus.NOT_FOUND, "text/plain", b"not found\n")
+            return
+        length = req.headers.get("Content-Length", "0")
+        if not length.isdigit() or int(length) > MAX_BODY:
+            self.count("control_bad_request")
+            req.close_connection = True  # the body is not read: the connection cannot go on
+            self._send(req, HTTPStatus.REQUEST_ENTITY_TOO_LARGE, "application/json",
+                       json.dumps({"code": "bad_request", "message": f"a control request's "
+                                   f"body has a length of at most {MAX_BODY} bytes"}).encode())
+            return
+        try:
+            body = req.rfile.read(int(length))
+        except (TimeoutError, ConnectionError):
+            self.count("slow_viewer")
+            req.close_connection = True
+            return
+        headers = {k: req.headers.get(k, "") for k in ("Host", "Content-Type")}
+        if "Origin" in req.headers:
+            headers["Origin"] = req.headers["Origin"]
+        reply = self.control.handle(action, target, headers, body)
+        if reply.status < 300:
+            self._status = (0.0, b"")  # the stream list shows the change at once
+        self._send(req, reply.status, "application/json", json.dumps(reply.body).encode())
+
     def _send(self, req: BaseHTTPRequestHandler, status: HTTPStatus, kind: str,
               body: bytes) -> None:
         req.send_response(status)
@@ -443,13 +519,15 @@ class LiveView:
         req.wfile.write(body)
 
     def _streams(self) -> bytes:
-        """Streams and sessions from the service's status, cached for a second."""
+        """Streams and sessions from the service's status, with the streams stations announce
+        publishing (no session yet), cached for a second."""
         at, body = self._status
         if time.monotonic() - at < 1.0:
             return body
         try:
             status = self.client.status(timeout=2.0)
-            streams: dict[str, list[dict[str, Any]]] = {}
+            streams: dict[str, list[dict[str, Any]]] = {
+                name: [] for name in self.client.streams(timeout=1.0)}
             for s in status.sessions:
                 streams.setdefault(s.stream_id, []).append({
                     "session_id": s.session_id, "preset": s.preset,
@@ -466,9 +544,9 @@ class LiveView:
 
     def _frame(self, req: BaseHTTPRequestHandler, watch: Watch) -> None:
         """The next rendered picture after ``?after=N`` (a long poll: it waits up to 10 s for
-        one), its number and frame in headers. The page asks again once it shows it, so a
-        slow viewer gets fewer pictures instead of a backlog, and every picture shown is
-        complete (a browser's multipart/MJPEG decoding shows a part late)."""
+        one), its number, its frame's number and size in headers. The page asks again once it
+        shows it, so a slow viewer gets fewer pictures instead of a backlog, and every picture
+        shown is complete (a browser's multipart/MJPEG decoding shows a part late)."""
         query = req.path.partition("?")[2]
         after = -1
         for part in query.split("&"):
@@ -480,6 +558,7 @@ class LiveView:
             watch.changed.wait_for(lambda: watch.rendered > after or watch._stop.is_set(),
                                    timeout=POLL_S)
             jpeg, rendered, seq = watch.jpeg, watch.rendered, watch.rendered_seq
+            size = watch.rendered_size
         if jpeg is None or rendered <= after:
             req.send_response(HTTPStatus.NO_CONTENT)
             req.send_header("Content-Length", "0")
@@ -490,7 +569,11 @@ class LiveView:
         req.send_header("Content-Length", str(len(jpeg)))
         req.send_header("Cache-Control", "no-store")
         req.send_header("X-Rendered", str(rendered))
-        req.send_header("X-Frame-Seq", str(seq))
+        if seq is not None:  # the service's number of the frame (not known on the video key)
+            req.send_header("X-Frame-Seq", str(seq))
+        if size is not None:  # the frame's own size: a box drawn on the picture scales by it
+            req.send_header("X-Frame-Width", str(size[0]))
+            req.send_header("X-Frame-Height", str(size[1]))
         req.end_headers()
         req.wfile.write(jpeg)
 
@@ -609,6 +692,12 @@ def main(argv: Sequence[str] | None = None) -> int:
                     "DCI 4K)")
     ap.add_argument("--video-key", default=DEFAULT_VIDEO_KEY,
                     help="the service's video_key ('' for none)")
+    ap.add_argument("--allow-control", action="store_true",
+                    help="let the page start, re-initialise and stop sessions (drawing a box "
+                    "on the video); off by default: whoever reaches the page controls tracking")
+    ap.add_argument("--allow-host", action="append", default=[], metavar="NAME",
+                    help="a host name the page may be reached by for control (repeatable; IP "
+                    "addresses and localhost always may)")
     add_service_arguments(ap)
     args = ap.parse_args(argv)
     stop = prepare()
@@ -619,10 +708,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         try:
             view = LiveView(client, args.host, args.port, max_fps=args.max_fps,
                             max_width=args.max_width, video_key=args.video_key or None,
-                            max_viewers=args.max_viewers, max_pixels=args.max_pixels)
+                            max_viewers=args.max_viewers, max_pixels=args.max_pixels,
+                            allow_control=args.allow_control, allowed_hosts=args.allow_host)
         except (OSError, ValueError) as exc:
             raise SystemExit(f"arcf-view: {exc}") from exc
-        log.info("live view on %s", view.url)
+        log.info("live view on %s (tracking control %s)", view.url,
+                 "on" if args.allow_control else "off: --allow-control turns it on")
         stop.wait()
         view.close()
     return 0

@@ -18,11 +18,13 @@ INSTANCES = ("arcf-1", "arcf-2")
 
 
 def stack_env(base: Mapping[str, str], *, router_port: int, prometheus_port: int, data: Path,
-              version: str, workers_per_instance: int = 1) -> dict[str, str]:
+              version: str, workers_per_instance: int = 1, lease_ms: int = 3000
+              ) -> dict[str, str]:
     """The compose file's variables for a stack published on loopback."""
     return {**base, "ARCF_PUBLISH_ADDRESS": "127.0.0.1", "ARCF_ROUTER_PORT": str(router_port),
             "ARCF_PROMETHEUS_PORT": str(prometheus_port), "ARCF_DATA": str(data),
-            "ARCF_WORKERS_PER_INSTANCE": str(workers_per_instance), "ARCF_VERSION": version}
+            "ARCF_WORKERS_PER_INSTANCE": str(workers_per_instance), "ARCF_VERSION": version,
+            "ARCF_LEASE_MS": str(lease_ms)}
 
 
 class ComposeStack:

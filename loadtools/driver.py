@@ -314,8 +314,14 @@ class Fleet:
             self.ended.append(st)
 
     def _stop_sessions(self, st: SimulatedStream) -> None:
+        """Stop the stream's sessions, except those the service already ended (their last
+        result, ``stopped``, came: a stop would only be refused as ``unknown_session``)."""
+        with st.record.cond:
+            ended = {r.session_id for r in st.record.ended}
         try:
             for sid in st.sessions:
+                if sid in ended:
+                    continue
                 try:
                     self.client.stop(sid)
                     self.sessions_stopped += 1

@@ -157,16 +157,22 @@ class StreamRecord:
         counted in a later result's ``dropped`` (frames before the session's first result
         are counted here as skipped at the start); ``unaccounted`` is what neither explains.
         Frames sent after the highest answered one were still queued when the stream stopped
-        (the tail); a session that never answered has every frame in its tail. Results must
-        arrive in frame order (``out_of_order`` counts those that did not)."""
+        (the tail); a session that never answered has every frame in its tail. Frames sent
+        after the session's last result (``stopped``: the service ended it) arrived are
+        ``after_end``, not tail: nobody was tracking them. Results must arrive in frame order
+        (``out_of_order`` counts those that did not)."""
         out = dict.fromkeys(ACCOUNTS, 0)
         with self.cond:
-            n_sent = len(self.sent)
+            sent = list(self.sent)
             sessions = list(self.sessions)
             received = list(self.received)
+            ended = {r.session_id: r.t for r in self.ended}
         for sid in sessions:
             rows = [r for r in received if r.session_id == sid]
             out["sessions"] += 1
+            late = sum(1 for _, t in sent if t > ended[sid]) if sid in ended else 0
+            out["after_end"] += late
+            n_sent = len(sent) - late
             if not rows:
                 out["tail"] += n_sent
                 continue
@@ -184,7 +190,7 @@ class StreamRecord:
 
 #: the keys of an accounting, in report order
 ACCOUNTS = ("sessions", "results", "dropped", "skipped_at_start", "unaccounted", "out_of_order",
-            "tail")
+            "tail", "after_end")
 
 
 class Ledger:

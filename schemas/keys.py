@@ -210,6 +210,16 @@ class KeySpace:
     def all_client_tokens(self) -> str:
         return f"{self.prefix}/clients/*"
 
+    def publisher_token(self, stream: str, client: str) -> str:
+        """``<prefix>/publishers/<stream>/<client>``: a station's liveliness token while it
+        publishes a stream's frames (so that a viewer finds streams no session tracks yet)."""
+        stream = check_id(stream, "stream id")
+        return f"{self.prefix}/publishers/{stream}/{check_id(client, 'client id')}"
+
+    def all_publisher_tokens(self) -> str:
+        """``<prefix>/publishers/*/*``: every stream's publishers."""
+        return f"{self.prefix}/publishers/*/*"
+
     def instance_token(self, instance: str) -> str:
         """``<prefix>/instances/<instance>``: a service instance's liveliness token."""
         return f"{self.prefix}/instances/{check_id(instance, 'instance id')}"
@@ -264,6 +274,11 @@ class KeySpace:
             key, ("streams", None, "sessions", None, "results"), "results"
         )
         return stream, session
+
+    def parse_publisher_key(self, key: object) -> tuple[str, str]:
+        """``(stream, client)`` of a publisher liveliness token key."""
+        stream, client = self._chunks(key, ("publishers", None, None), "publisher token")
+        return stream, client
 
     def parse_worker_key(self, key: object) -> tuple[str, str]:
         """``(instance, worker)`` of a worker liveliness token key."""

@@ -23,7 +23,7 @@ from typing import Any
 from arcf import __version__
 
 from . import multiproc
-from .settings import ServiceSettings, add_arguments, from_arguments
+from .settings import LOG_FORMAT, ServiceSettings, add_arguments, from_arguments
 
 log = logging.getLogger(__name__)
 
@@ -249,7 +249,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
+    logging.basicConfig(level=logging.INFO, format=LOG_FORMAT)
     args = build_parser().parse_args(argv)
     try:
         settings = from_arguments(args)

@@ -26,6 +26,7 @@ from arcf.schemas import (
     Ack,
     ErrorMessage,
     Frame,
+    InvalidKey,
     KeySpace,
     Message,
     Presets,
@@ -139,6 +140,7 @@ class TrackingClient:
         self._token = (self.session.liveliness().declare_token(
             self.keys.client_token(self.client_id)) if tie_sessions else None)
         self._publishers: dict[str, Any] = {}
+        self._announced: dict[str, Any] = {}
         self._seq: dict[str, int] = {}
         self._lock = threading.Lock()
 
@@ -192,6 +194,10 @@ class TrackingClient:
             if pub is None:
                 pub = self._publishers[stream_id] = self.session.declare_publisher(
                     self.keys.frames(stream_id), congestion_control=self._congestion)
+                # announced while this client publishes it: viewers list it before any
+                # session tracks it (``streams``)
+                self._announced[stream_id] = self.session.liveliness().declare_token(
+                    self.keys.publisher_token(stream_id, self.client_id))
         frame = Frame(stream_id=stream_id, seq=seq,
                       capture_ts_ns=capture_ts_ns if capture_ts_ns is not None else time.time_ns(),
                       encoding=encoding, width=width, height=height, payload=data)
@@ -264,7 +270,24 @@ class TrackingClient:
         ``dropped``)."""
         return MessageStream(self, self.keys.frames(stream_id), callback, maxsize, Frame)
 
+    def streams(self, timeout: float = 2.0) -> list[str]:
+        """The streams some station publishes now (its SDK announces each one while its
+        client is open; a stream fed otherwise, e.g. only on the video key, is not listed),
+        sorted."""
+        found = set()
+        for reply in self.session.liveliness().get(self.keys.all_publisher_tokens(),
+                                                  timeout=timeout):
+            if reply.ok is None:
+                continue
+            try:
+                found.add(self.keys.parse_publisher_key(reply.ok.key_expr)[0])
+            except InvalidKey:
+                continue
+        return sorted(found)
+
     def close(self) -> None:
+        for token in self._announced.values():
+            token.undeclare()
         for pub in self._publishers.values():
             pub.undeclare()
         if self._token is not None:

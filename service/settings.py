@@ -18,6 +18,9 @@ ENV_PREFIX = "ARCF_SERVICE_"
 #: ``-m`` mode, ``-e`` connect endpoint, ``-l`` listen endpoint, ``-c`` Zenoh config file.
 ZENOH_SHORT_FLAGS = {"mode": "-m", "connect": "-e", "listen": "-l", "zenoh_config": "-c"}
 
+#: every arcf process logs lines in this form (the service, its workers, the adapters)
+LOG_FORMAT = "%(asctime)s %(name)s %(message)s"
+
 
 def _about(help: str, choices: tuple[str, ...] | None = None,
            kind: type | None = None) -> dict[str, Any]:

@@ -49,6 +49,7 @@ from .commands import (
 from .decoding import decode_image
 from .foxglove import parse_compressed_video
 from .intake import Inbox, Numbering, Verdict
+from .settings import LOG_FORMAT
 from .video import CODECS, Decoded, Outcome, StreamDecoder
 
 log = logging.getLogger(__name__)
@@ -949,6 +950,9 @@ def worker_main(index: int, settings: Any, commands: Any, responses: Any, stop: 
     import signal
 
     _die_with_parent()
+    # a spawned process starts with logging unset: without this its sessions' ends (why the
+    # service stopped tracking something) would never reach the service's log
+    logging.basicConfig(level=logging.INFO, format=LOG_FORMAT)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the launcher decides when workers stop
     cv2.setNumThreads(1)
     worker = Worker(index, settings, commands, responses, stop)

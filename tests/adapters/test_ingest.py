@@ -233,6 +233,10 @@ def test_rtsp_from_gstreamers_server(camera, service, tmp_path) -> None:
             # camera's pictures come a second time, after a hole in the numbering
             wait_until(lambda: ingest.counts["opened"] >= 2 and ingest.counts["published"]
                        >= N + GOP, timeout=120, what="the RTSP stream played twice")
+            ingest.close()
+            # frames reach the station after the ingest counted them published
+            wait_until(lambda: len(watch.snapshot()) >= ingest.counts["published"],
+                       timeout=30, what="every published frame seen")
         finally:
             ingest.close()
             frames = watch.snapshot()

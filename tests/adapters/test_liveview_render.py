@@ -124,11 +124,11 @@ def test_a_stale_session_is_drawn_again_marked_until_a_frame_comes(
     w._on_result(result("a", 2))
     w._on_result(result("b", 2))
     seq, _, drawn = w._pick()
-    w.rendered_seq = seq  # rendered
+    w.rendered_key = seq  # rendered
     assert w._pick() is None  # nothing new: no frame, no change
     w._on_result(stale("a", 2))  # a's stream stopped: the same frame, drawn again
     seq, _, drawn = w._pick()
-    w.rendered_seq = seq
+    w.rendered_key = seq
     by = {r.session_id: r for _, r in drawn}
     assert seq == 2 and by["a"].status == "stale" and by["a"].box == (11, 21, 40, 30)
     assert by["a"].message == "no frame for 1.0 s" and by["b"].status == "tracking"
@@ -149,3 +149,34 @@ def test_a_stale_box_is_grey_and_thin_not_the_sessions_colour() -> None:
     assert tuple(out[35, 10]) == STALE_BGR and tuple(out[35, 50]) == STALE_BGR  # its edges
     assert tuple(out[35, 11]) == (0, 0, 0)  # one pixel wide
     assert not (out == np.array(colour_bgr(0), np.uint8)).all(axis=2).any()
+
+
+def test_on_the_video_key_results_meet_their_pictures_by_capture_time(
+    watched: tuple[Watch, Any],
+) -> None:
+    """Opened mid-stream: the view numbers the video key's units from its subscription, the
+    service from its own (here 57 units earlier); the timestamp names the same picture."""
+    w, on_frame = watched
+    for k in range(5):
+        on_frame(TapFrame("cam", k, 1000 * (k + 1), "jpeg", b"jpeg", source="compressed_video"))
+    for k in range(4):  # the service's numbers for the first four pictures
+        w._on_result(result("a", 57 + k).model_copy(update={"capture_ts_ns": 1000 * (k + 1)}))
+    key, _, drawn = w._pick()
+    assert key == 4000 and [(r.frame_seq, r.capture_ts_ns) for _, r in drawn] == [(60, 4000)]
+    w.rendered_key = key
+    w._on_result(result("a", 61).model_copy(update={"capture_ts_ns": 5000}))
+    key, _, drawn = w._pick()
+    assert key == 5000 and [r.frame_seq for _, r in drawn] == [61]
+
+
+def test_a_restarted_numbering_is_followed(watched: tuple[Watch, Any]) -> None:
+    w, on_frame = watched
+    for k in range(100, 105):
+        on_frame(frame(k))
+    w._on_result(result("a", 104))
+    assert w._pick()[0] == 104
+    for k in range(3):  # the camera restarted from 0
+        on_frame(frame(k))
+    w._on_result(result("a", 2))
+    key, _, drawn = w._pick()
+    assert key == 2 and [r.frame_seq for _, r in drawn] == [2]

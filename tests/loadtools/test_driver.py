@@ -279,7 +279,7 @@ def test_a_stream_id_used_again_gets_a_fresh_record_and_foreign_results_are_igno
     assert again.record.foreign == 1 and len(again.record.received) == 2
     assert fleet.ledger.accounting() == {"sessions": 2, "results": 5, "dropped": 0,
                                          "skipped_at_start": 0, "unaccounted": 0,
-                                         "out_of_order": 0, "tail": 0}
+                                         "out_of_order": 0, "tail": 0, "after_end": 0}
 
 
 # ---------------------------------------------------------------------------- the ledger
@@ -308,6 +308,23 @@ def test_the_ledger_accounts_for_every_frame() -> None:
     assert got["unaccounted"] == 0 + abs(5 + 1 - 0 - 1 - 5)
     assert rec.gaps(0, time.monotonic() + 1) == 0  # every frame up to 7 answered by someone
     assert rec.answered(1) == 2 and rec.answered(2) == 1 and rec.answered(9) == 0
+
+
+def test_frames_after_the_service_ended_a_session_are_not_its_tail() -> None:
+    """The service sheds a session (its last result, ``stopped``) while the stream goes on:
+    the frames sent after that were tracked by nobody, counted apart from the queue's tail."""
+    rec = Ledger().open("cam")
+    rec.add_session("s1")
+    for k in range(4):
+        rec.on_sent(k)
+        rec.on_result(_result("s1", k))
+    rec.on_sent(4)  # in flight when the service ended the session: its tail
+    rec.on_result(_result("s1", 3, status="stopped"))
+    time.sleep(0.01)  # the stimulus: later frames are sent after the end arrived
+    for k in range(5, 9):
+        rec.on_sent(k)
+    got = rec.accounting()
+    assert got["tail"] == 1 and got["after_end"] == 4 and got["unaccounted"] == 0
 
 
 def test_handover_and_first_resumed() -> None:

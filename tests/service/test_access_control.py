@@ -62,7 +62,7 @@ def peer_config(d: Path, cn: str | None, endpoint: str) -> Path:
 
 
 def test_only_authorised_stations_track(tmp_path: Path) -> None:
-    make_certs(tmp_path, ["router", "arcf-service-1", "station-01", "intruder"])
+    make_certs(tmp_path, ["router", "arcf-service-1", "station-01", "station-02", "intruder"])
     port = free_port()
     endpoint = f"tls/localhost:{port}"
     conf = zenoh.Config.from_file(str(DEPLOY / "router-tls-acl.json5"))
@@ -117,6 +117,19 @@ def test_only_authorised_stations_track(tmp_path: Path) -> None:
                     got.append(results.get(timeout=10))
                     while got[-1].status.value == "stale":  # the wait above: no frames
                         got[-1] = results.get(timeout=10)
+                # the stream is announced to stations (the live view's list); the intruder's
+                # announcement reaches nobody, and it sees no one's but its own
+                def announced(c: TrackingClient) -> set[str]:
+                    return {str(r.ok.key_expr) for r in c.session.liveliness().get(
+                        c.keys.all_publisher_tokens(), timeout=2.0) if r.ok is not None}
+
+                viewer = zenoh.open(zenoh.Config.from_file(
+                    str(peer_config(tmp_path, "station-02", endpoint))))
+                with TrackingClient(session=viewer, tie_sessions=False) as view:
+                    assert view.streams() == ["cam"]  # another station's, through the router
+                    assert announced(view) == {good.keys.publisher_token("cam", good.client_id)}
+                viewer.close()
+                assert announced(bad) == {bad.keys.publisher_token("cam", bad.client_id)}
                 forged = got[-1].model_copy(update={"frame_seq": 999})
                 intruder.put(good.keys.results("cam", ack.session_id), encode(forged))
                 time.sleep(0.5)  # the window in which a forged result would arrive (none may)

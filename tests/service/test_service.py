@@ -301,7 +301,7 @@ def test_a_killed_worker_is_replaced_and_its_sessions_resume(frames) -> None:
         # two streams: least-loaded placement puts them on different workers
         s0, s1 = "kill-0", "kill-1"
         keys = KeySpace()
-        with TrackingClient(connect=[svc.endpoint]) as client:
+        with TrackingClient(connect=[svc.endpoint], frame_congestion="block") as client:
             r0, r1 = client.results(s0), client.results(s1)
             notices: list = []
             subs = [client.session.declare_subscriber(keys.errors(s), lambda x: notices.append(
@@ -412,7 +412,7 @@ def test_limits_stale_frames_and_bombs_are_refused_counted_and_harmless(frames, 
     keys = KeySpace()
     svc = _Service("--max-stream-fps", "4", "--max-sessions", "2", "--max-pixels", "2000000")
     try:
-        with TrackingClient(connect=[svc.endpoint]) as client:
+        with TrackingClient(connect=[svc.endpoint], frame_congestion="block") as client:
             errors: list = []
             sub = client.session.declare_subscriber(keys.errors("lim"),
                                                     lambda s: errors.append(s))
@@ -493,7 +493,7 @@ def decode_error_code(sample) -> str:
 def test_sigterm_finishes_in_flight_frames_and_sends_final_statuses(frames) -> None:
     seq, data = frames
     svc = _Service()
-    with TrackingClient(connect=[svc.endpoint]) as client:
+    with TrackingClient(connect=[svc.endpoint], frame_congestion="block") as client:
         results = client.results("bye")
         fleet = _lockstep(client, {"bye": (_clip(seq, data[:3]), ["bacf", "arcf-h"])})
         assert len(_got(fleet, "bye")) == 6

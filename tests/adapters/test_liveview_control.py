@@ -1,0 +1,211 @@
+"""Click to track in the live view: a box dragged on the picture in a real headless browser
+(Debian's Chromium, a real pointer through Playwright) starts a session on a stream that had
+none, a second one re-initialises it, a button stops it; a stream is listed before any session
+tracks it. Control is off unless the operator turns it on, and a request that does not come
+from the view's own page is refused and counted."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import threading
+import urllib.error
+import urllib.request
+from collections.abc import Iterator
+from typing import Any
+
+import pytest
+
+pytest.importorskip("zenoh")
+
+from arcf.adapters.liveview import MAX_BODY, LiveView
+from arcf.loadtools.procs import ServiceProcess
+from arcf.loadtools.waiting import wait_until
+from arcf.service.client import TrackingClient
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+pytestmark = pytest.mark.integration
+#: frames the camera sends at most (bounded: 2 minutes at 10 fps)
+MAX_FRAMES = 1200
+
+
+@pytest.fixture(scope="module")
+def service() -> Iterator[ServiceProcess]:
+    with ServiceProcess("--stale-after-s", "0", workers=1) as svc:
+        yield svc
+
+
+class Camera:
+    """A station publishing a real sequence's JPEG frames at 10 fps, with no session."""
+
+    def __init__(self, client: TrackingClient, stream: str, data: list[bytes]) -> None:
+        self.stop = threading.Event()
+        self.sent = 0
+
+        def run() -> None:
+            for i in range(MAX_FRAMES):
+                if self.stop.wait(0.1):  # the stimulus: a 10 fps camera
+                    return
+                client.publish_frame(stream, data=data[i % len(data)], seq=i)
+                self.sent = i + 1
+
+        self.thread = threading.Thread(target=run, daemon=True)
+        self.thread.start()
+
+    def close(self) -> None:
+        self.stop.set()
+        self.thread.join(timeout=10)
+
+
+def post(url: str, body: Any, headers: dict[str, str] | None = None,
+         raw: bytes | None = None) -> tuple[int, dict[str, Any]]:
+    req = urllib.request.Request(url, data=raw if raw is not None else json.dumps(body).encode(),
+                                 headers={"Content-Type": "application/json", **(headers or {})},
+                                 method="POST")
+    try:
+        with urllib.request.urlopen(req, timeout=10) as reply:
+            return reply.status, json.loads(reply.read())
+    except urllib.error.HTTPError as exc:
+        return exc.code, json.loads(exc.read() or b"{}")
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="needs Chromium (apt: chromium)")
+def test_a_dragged_box_starts_then_reinitialises_then_stops_a_session(
+        service: ServiceProcess, wakeboard7) -> None:
+    from playwright.sync_api import sync_playwright
+
+    seq = wakeboard7
+    data = [p.read_bytes() for p in seq.frames[:60]]
+    with TrackingClient(connect=[service.endpoint], frame_congestion="block") as station, \
+            TrackingClient(connect=[service.endpoint]) as viewer:
+        camera = Camera(station, "cam-9", data)
+        view = LiveView(viewer, "127.0.0.1", 0, max_fps=5, max_width=960, allow_control=True)
+        try:
+            with sync_playwright() as p:
+                browser = p.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
+                page = browser.new_page(viewport={"width": 1300, "height": 1000})
+                page.goto(view.url)
+                # listed with no session (the station announces what it publishes)
+                link = page.locator("#streams a", has_text="cam-9")
+                link.wait_for(timeout=30_000)
+                assert "no session" in page.inner_text("#streams li:has(a)")
+                link.click()
+                page.wait_for_function(
+                    "document.getElementById('video').naturalWidth > 0 && "
+                    "window.arcfView.control.ready", timeout=30_000)
+                assert "drag a box" in page.inner_text("#control-hint")
+                page.select_option("#preset", "bacf")
+
+                def drag(box: tuple[float, float, float, float]) -> None:
+                    """A pointer drag over ``box`` (1-based frame pixels) on the picture."""
+                    area = page.locator("#draw").bounding_box()
+                    assert area is not None
+                    k = area["width"] / 1280  # the page shows the 1280-wide frame scaled
+                    x, y, w, h = box
+                    left, top = area["x"] + (x - 1) * k, area["y"] + (y - 1) * k
+                    page.mouse.move(left, top)
+                    page.mouse.down()
+                    page.mouse.move(left + w * k / 2, top + h * k / 2, steps=4)
+                    page.mouse.move(left + w * k, top + h * k, steps=4)
+                    page.mouse.up()
+
+                first = (500.0, 300.0, 80.0, 60.0)
+                drag(first)
+                page.wait_for_function("window.arcfView.control.last !== null", timeout=30_000)
+                reply = page.evaluate("window.arcfView.control.last")
+                assert reply["status"] == 201, reply
+                sid = reply["session_id"]
+                (info,) = viewer.status("cam-9").sessions
+                assert info.session_id == sid and info.preset == "bacf"
+                # its first result: initialised on the box drawn (to a pixel: the pointer
+                # moves in CSS pixels of a picture shown at 960 / 1280 of the frame's)
+                results = viewer.results("cam-9", sid)
+                init = next(r for r in results.iter(timeout=30) if r.status.value != "stale")
+                assert init.status.value == "initialized"
+                assert all(abs(a - b) <= 1.5 for a, b in zip(init.box, first, strict=True)), \
+                    init.box
+                page.wait_for_selector(f"#sessions tr[data-session='{sid}']", timeout=30_000)
+
+                # re-drawn: the row's button, then a new box
+                page.click(f"#sessions tr[data-session='{sid}'] button.select")
+                assert "re-initialise" in page.inner_text("#control-hint")
+                second = (300.0, 200.0, 60.0, 90.0)
+                drag(second)
+                page.wait_for_function(
+                    "window.arcfView.control.last && window.arcfView.control.last.status "
+                    "=== 200", timeout=30_000)
+                again = next(r for r in results.iter(timeout=30)
+                             if r.status.value == "reinitialized")
+                assert all(abs(a - b) <= 1.5 for a, b in zip(again.box, second, strict=True))
+                assert viewer.status("cam-9").sessions[0].session_id == sid  # the same one
+
+                # stopped from its row
+                page.click(f"#sessions tr[data-session='{sid}'] button.stop")
+                wait_until(lambda: viewer.status("cam-9").sessions == [], timeout=30,
+                           what="the session stopped")
+                page.wait_for_function(
+                    "document.getElementById('control-state').textContent.includes('stopped')",
+                    timeout=30_000)
+                browser.close()
+        finally:
+            view.close()
+            camera.close()
+    assert view.counts.get("control_control_off", 0) == 0
+
+
+def test_control_is_off_unless_turned_on_and_only_the_views_page_may_use_it(
+        service: ServiceProcess) -> None:
+    box = {"box": [500, 300, 80, 60], "preset": "bacf"}
+    with TrackingClient(connect=[service.endpoint]) as viewer:
+        off = LiveView(viewer, "127.0.0.1", 0)
+        try:
+            assert json.loads(urllib.request.urlopen(off.url + "api/config", timeout=10)
+                              .read())["control"] is False
+            code, reply = post(off.url + "api/streams/cam-x/sessions", box)
+            assert code == 403 and reply["code"] == "control_off"
+            assert "--allow-control" in reply["message"]
+        finally:
+            off.close()
+        assert viewer.status("cam-x").sessions == []
+        assert off.counts == {"control_control_off": 1}
+
+        on = LiveView(viewer, "127.0.0.1", 0, allow_control=True)
+        url = on.url + "api/streams/cam-x/sessions"
+        try:
+            refusals = [
+                # another site open in the operator's browser
+                ({"Origin": "http://evil.example"}, box, "bad_origin", 403),
+                # a name rebound to this machine (DNS rebinding): its own Host header
+                ({"Host": "evil.example:8090"}, box, "bad_host", 403),
+                ({"Content-Type": "text/plain"}, box, "bad_request", 415),
+                ({}, {"box": [1, 2, 3]}, "bad_request", 400),
+                ({}, {"box": [1, 2, -3, 4]}, "bad_request", 400),
+                ({}, {"box": [1, 2, 3, 4], "preset": "bacf", "path": "/etc"}, "bad_request",
+                 400),
+                ({}, {"box": [1, 2, 3, 4], "frame_seq": -1}, "bad_request", 400),
+            ]
+            for headers, body, code_wanted, status_wanted in refusals:
+                status, reply = post(url, body, headers)
+                assert (status, reply["code"]) == (status_wanted, code_wanted), (headers, body)
+            status, reply = post(url, None, raw=b"{not json")
+            assert status == 400 and reply["code"] == "bad_request"
+            status, _ = post(url, None, raw=b"x" * (MAX_BODY + 1))
+            assert status == 413
+            # the service's own refusals, with its code
+            status, reply = post(url, {"box": [1, 2, 3, 4], "preset": "kcf"})
+            assert status == 422 and reply["code"] == "unknown_preset"
+            status, reply = post(on.url + "api/sessions/nobody/stop", {})
+            assert status == 404 and reply["code"] == "unknown_session"
+            assert viewer.status("cam-x").sessions == []  # nothing was started
+            # the page's own request (its origin, JSON): started; then stopped
+            status, reply = post(url, box, {"Origin": on.url.rstrip("/")})
+            assert status == 201
+            sid = reply["session_id"]
+            assert [s.session_id for s in viewer.status("cam-x").sessions] == [sid]
+            status, _ = post(on.url + f"api/sessions/{sid}/stop", {})
+            assert status == 200 and viewer.status("cam-x").sessions == []
+        finally:
+            on.close()
+        counted = sum(v for k, v in on.counts.items() if k.startswith("control_"))
+        assert counted == len(refusals) + 2 + 2  # the bad JSON, the service's two refusals
+        assert on.counts["control_bad_request"] == 5 + 1 + 1  # the body too large, counted
