@@ -260,6 +260,7 @@ class GimbalFollower:
             (0.0, 0.0, 0.0, 0.0), (0, 0), False)
         with self._lock:
             self._send(self.controller.update(seen, now), now)
+            self.counts["results"] += 1  # after its command: a count seen means it is sent
 
     def tick(self, now: float) -> None:
         """Between results: lets go once the session is silent for ``timeout_s``."""

@@ -58,7 +58,7 @@ import sys
 import threading
 import time
 from collections import Counter
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -300,14 +300,16 @@ class MavlinkCameras:
                  status_interval_s: float = 0.1, heartbeat_s: float = 1.0,
                  link_timeout_s: float = 5.0, stale_after_s: float = 0.8,
                  signing_key: bytes | None = None, max_pixels: int = 4096 * 2160,
-                 video_key: str | None = DEFAULT_VIDEO_KEY) -> None:
+                 video_key: str | None = DEFAULT_VIDEO_KEY,
+                 follow_clock: Callable[[], float] = time.monotonic) -> None:
         """``stale_after_s``: a session with no result for this long is reported stale
         (ERROR, no box), as the service reports a stream without frames; the service's own
         setting of the same name is the right value (0: only the service's notices).
         ``signing_key``: 32 bytes of MAVLink 2 signing secret (sign everything, accept only
         signed messages). ``max_pixels``: the largest frame a command is carried out on.
         ``video_key``: the service's key of CDR ``CompressedVideo`` streams (None: none), whose
-        units the camera shows as well as the service's own frames."""
+        units the camera shows as well as the service's own frames. ``follow_clock``: the
+        follow controllers' time, seconds (a simulation closes the loop in its own time)."""
         if signing_key is not None and len(signing_key) != 32:
             raise ValueError(f"a MAVLink signing key is 32 bytes, got {len(signing_key)}")
         if not cameras:
@@ -325,6 +327,7 @@ class MavlinkCameras:
         self.stale_after_s = stale_after_s
         self.counts: Counter[str] = Counter()
         self.max_pixels = max_pixels
+        self.follow_clock = follow_clock
         self.conn = mavutil.mavlink_connection(connection, source_system=system_id,
                                                source_component=ids[0], autoreconnect=True,
                                                udp_timeout=link_timeout_s)
@@ -403,7 +406,7 @@ class MavlinkCameras:
             if cam.follower is not None:  # the gimbal follows a box, or is let go
                 size = ((frame.width, frame.height) if frame is not None and frame.width
                         and frame.height else self._sizes.get(cam.config.stream_id))
-                cam.follower.on_result(result, size, time.monotonic())
+                cam.follower.on_result(result, size, self.follow_clock())
             if not stopped:
                 # a stale notice (or the first result after one): the station hears it now
                 self._announce(cam, time.monotonic())
@@ -513,7 +516,7 @@ class MavlinkCameras:
         for cam in self.cameras:
             self._announce(cam, now)  # the adapter's own timeout passed, or a session ended
             if cam.follower is not None:
-                cam.follower.tick(now)  # a silent session: the gimbal is let go
+                cam.follower.tick(self.follow_clock())  # a silent session: let go
             if cam.status_interval_s > 0 and now >= cam.next_status:
                 cam.next_status = max(cam.next_status + cam.status_interval_s, now - 1.0)
                 self._send(cam, self._status(cam, now))

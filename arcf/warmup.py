@@ -21,8 +21,9 @@ _M_MMAP_THRESHOLD = -3
 def warm_up() -> float:
     """Compile the compiled kernels, or load them from Numba's cache; returns seconds.
 
-    Why: each kernel is compiled on its first call, about 11 s for all of them on a machine
-    that has not cached them yet (0.35 s once cached, the frames below included; the cache is
+    Why: each kernel is compiled on its first call, about a minute for all of them on a
+    machine that has not cached them yet (56 s on one core of the 2-core AMD EPYC; 1.6 s once
+    cached, the frames below included; the cache is
     ``__pycache__`` beside the sources, else ``$NUMBA_CACHE_DIR`` or the user's cache
     directory). A service calls this when a worker starts, so that the first frame of the
     first stream does not pay.

@@ -127,8 +127,8 @@ class ServiceSettings:
                           metadata=_about("Zenoh lease, ms: how fast a hung peer is noticed"))
     worker_start_s: float = field(default=120.0, metadata=_about(
         "seconds start-up waits for every worker to be ready (a worker loads the tracker's "
-        "compiled kernels, or compiles them where no cache exists: ~11 s); past this the "
-        "service exits with an error instead of serving"))
+        "compiled kernels, or compiles them where no cache exists: about a minute, every "
+        "worker at once); past this the service exits with an error instead of serving"))
     instance_id: str = field(default_factory=lambda: uuid.uuid4().hex[:8], metadata=_about(
         "this instance's id among several (default: random)"))
 

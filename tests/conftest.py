@@ -13,6 +13,20 @@ import pytest
 
 from arcf.data import data_root
 
+
+@pytest.fixture(scope="session", autouse=True)
+def compiled_kernels() -> None:
+    """The tracker's compiled kernels in Numba's cache before the first test.
+
+    Why: a fresh clone has none, and compiling them takes about a minute of a core (several
+    on a loaded machine). Every worker of the first service a test starts would compile them
+    at once, against the service's start-up allowance (``worker_start_s``); compiled here
+    once, each worker loads them in a second or two."""
+    import arcf
+
+    arcf.warm_up()
+
+
 #: frame k -> (the frame, the target's box, None while hidden)
 Scene = Callable[[int], tuple[np.ndarray, tuple[int, int, int, int] | None]]
 

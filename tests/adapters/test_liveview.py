@@ -49,15 +49,21 @@ def test_the_page_shows_the_stream_with_its_boxes_and_updates(frames, tmp_path: 
         ack = client.start("drone-7", seq.init_box, preset="bacf", frame_seq=0)
         results = client.results("drone-7", ack.session_id)
 
+        view = LiveView(client, "127.0.0.1", 0, max_fps=5, max_width=960)
+        shown = threading.Event()  # the page shows the stream: the rest of the clip may come
+
         def publish() -> None:  # 10 fps, bounded: the clip once, then stop
+            # from the page's arrival (the view listens from then on), ten frames, then the
+            # rest once the page shows them: however slow the machine, the page sees it move
+            wait_until(lambda: "drone-7" in view.watches, timeout=60, what="the page watching")
             for i, d in enumerate(data):
+                if i == 10 and not shown.wait(timeout=120):
+                    return  # the page never came up: the test fails on its own wait
                 if stop.wait(0.1):  # the stimulus: a 10 fps camera
                     return
                 client.publish_frame("drone-7", data=d, seq=i)
 
         sender = threading.Thread(target=publish, daemon=True)
-        sender.start()
-        view = LiveView(client, "127.0.0.1", 0, max_fps=5, max_width=960)
         outside: list[str] = []
         try:
             with sync_playwright() as p:
@@ -66,12 +72,14 @@ def test_the_page_shows_the_stream_with_its_boxes_and_updates(frames, tmp_path: 
                 page.on("request", lambda r: None if r.url.startswith(
                     (view.url, "blob:" + view.url.rstrip("/"))) else outside.append(r.url))
                 page.goto(view.url + "?stream=drone-7")
+                sender.start()
                 page.wait_for_selector("#streams a.current", timeout=15_000)
                 assert page.inner_text("#streams a.current") == "drone-7"
                 page.wait_for_function(
                     "document.getElementById('video').naturalWidth > 0 && "
-                    "window.arcfView.points() > 5", timeout=30_000)
-                first = int(page.inner_text("#frame-seq"))
+                    "window.arcfView.points() > 5", timeout=60_000)
+                first = int(page.inner_text("#frame-seq"))  # at most 9: the rest waits
+                shown.set()
                 page.wait_for_function(
                     f"Number(document.getElementById('frame-seq').textContent) > {first + 5}",
                     timeout=30_000)  # it updates: later frames, more points

@@ -110,6 +110,7 @@ def test_a_dragged_box_starts_then_reinitialises_then_stops_a_session(
                     page.mouse.up()
 
                 first = (500.0, 300.0, 80.0, 60.0)
+                results = viewer.results("cam-9")  # before the drag: its first result too
                 drag(first)
                 page.wait_for_function("window.arcfView.control.last !== null", timeout=30_000)
                 reply = page.evaluate("window.arcfView.control.last")
@@ -119,8 +120,8 @@ def test_a_dragged_box_starts_then_reinitialises_then_stops_a_session(
                 assert info.session_id == sid and info.preset == "bacf"
                 # its first result: initialised on the box drawn (to a pixel: the pointer
                 # moves in CSS pixels of a picture shown at 960 / 1280 of the frame's)
-                results = viewer.results("cam-9", sid)
                 init = next(r for r in results.iter(timeout=30) if r.status.value != "stale")
+                assert init.session_id == sid
                 assert init.status.value == "initialized"
                 assert all(abs(a - b) <= 1.5 for a, b in zip(init.box, first, strict=True)), \
                     init.box
@@ -209,3 +210,61 @@ def test_control_is_off_unless_turned_on_and_only_the_views_page_may_use_it(
         counted = sum(v for k, v in on.counts.items() if k.startswith("control_"))
         assert counted == len(refusals) + 2 + 2  # the bad JSON, the service's two refusals
         assert on.counts["control_bad_request"] == 5 + 1 + 1  # the body too large, counted
+
+
+def test_opened_mid_stream_on_the_video_key_each_box_is_drawn_on_its_own_picture(
+        service: ServiceProcess, wakeboard7) -> None:
+    """CompressedVideo units carry no number: the service numbers them from its subscription,
+    the view from its own, which starts later. Each result still lands on its own picture
+    (the one whose capture time it carries), and the picture's number is not claimed."""
+    import time
+
+    import zenoh
+
+    from arcf.loadtools.video import encode_video
+    from arcf.service.decoding import decode_compressed
+    from arcf.service.foxglove import compressed_video
+
+    images = [decode_compressed(p.read_bytes()) for p in wakeboard7.frames[:30]]
+    units = encode_video(images, "h264", fps=10, gop=10, repeat_headers=True)
+    with TrackingClient(connect=[service.endpoint], frame_congestion="block") as client:
+        pub = client.session.declare_publisher("video/mid/stream",
+                                               congestion_control=zenoh.CongestionControl.BLOCK)
+        ack = client.start("mid", wakeboard7.init_box, preset="bacf")
+        results = client.results("mid", ack.session_id)
+        sent: dict[int, int] = {}  # capture time -> the service's number (its arrival order)
+
+        def send(i: int) -> None:
+            ts = time.time_ns()
+            sent[ts] = i
+            pub.put(compressed_video(units[i % len(units)], "h264", ts))
+
+        for i in range(15):  # before anyone watches
+            send(i)
+        wait_until(lambda: any(r.frame_seq >= 14 for r in results.iter(timeout=1)),
+                   timeout=60, what="the service's first 15 units answered")
+        view = LiveView(client, "127.0.0.1", 0, max_fps=10, max_width=640)
+        try:
+            # a viewer of its results: the stream is watched from now on
+            events = urllib.request.urlopen(view.url + "api/streams/mid/results", timeout=30)
+            watch = view.watches["mid"]
+            n = 15
+            while not (watch.drawn and watch.rendered_key is not None):
+                assert n < 15 + 90, "no picture drawn with a box"  # bounded: 9 s of video
+                send(n)
+                n += 1
+                time.sleep(0.1)  # the stimulus: a 10 fps camera
+            with watch.changed:
+                key, drawn, seq = watch.rendered_key, list(watch.drawn), watch.rendered_seq
+            (r,) = drawn
+            assert r.capture_ts_ns == key and sent[key] == r.frame_seq  # its own picture
+            assert seq is None  # the view does not know the service's number of it
+            reply = urllib.request.urlopen(view.url + "api/streams/mid/frame.jpg?after=0",
+                                           timeout=30)
+            assert reply.headers.get("X-Frame-Seq") is None
+            assert reply.headers.get("X-Frame-Width") == "1280"
+            events.close()
+        finally:
+            view.close()
+            results.close()
+            pub.undeclare()

@@ -178,8 +178,10 @@ def test_a_vanished_stations_grace_outlives_the_instance_running_its_session() -
     ids = ["grace-a", "grace-b"]
     stream = next(n for n in (f"grace-{k}" for k in range(1000)) if owner(n, ids) == "grace-a")
     router = RouterProcess()
+    # a grace long enough that the instance dies inside it however slowly this loop runs on
+    # a loaded machine (the kill comes 1 s into it, by the clock, not by frames sent)
     instances = start_instances(ids, router.endpoint, "--lease-ms", "1500",
-                                "--client-grace-s", "3", "--session-idle-s", "60")
+                                "--client-grace-s", "8", "--session-idle-s", "60")
     observer = TrackingClient(connect=[router.endpoint], tie_sessions=False)
     station = TrackingClient(connect=[router.endpoint])
     try:
@@ -187,15 +189,18 @@ def test_a_vanished_stations_grace_outlives_the_instance_running_its_session() -
         sub = observer.results(stream, callback=results.append)
         station.start(stream, clip.box, preset="bacf", frame_seq=0)
         t0 = time.monotonic()
-        seq, killed_at = 0, None
+        seq, closed_at, killed_at = 0, None, None
         # frames keep coming (from the observer): nothing here idles (the idle limit is 60 s,
-        # and the session produces results); a deadline of 50 s for the grace (3 s) to end it
+        # and the session produces results); a deadline of 50 s for the grace (8 s) to end it
         while time.monotonic() - t0 < 50 and not any(r.status == "stopped" for r in results):
             observer.publish_frame(stream, data=clip.frames[seq % len(clip)], seq=seq)
             seq += 1
             if seq == 10:
-                station.close()  # the station is gone: its grace (3 s) starts
-            if seq == 20:  # 1 s into the grace, the instance running the session dies
+                station.close()  # the station is gone: its grace starts
+                closed_at = time.monotonic()
+            if (killed_at is None and closed_at is not None
+                    and time.monotonic() - closed_at >= 1.0):
+                # 1 s into the grace, the instance running the session dies
                 instances["grace-a"].proc.send_signal(signal.SIGKILL)
                 instances["grace-a"].proc.wait(timeout=10)
                 killed_at = time.monotonic()
