@@ -249,15 +249,23 @@ def test_opened_mid_stream_on_the_video_key_each_box_is_drawn_on_its_own_picture
             events = urllib.request.urlopen(view.url + "api/streams/mid/results", timeout=30)
             watch = view.watches["mid"]
             n = 15
-            while not (watch.drawn and watch.rendered_key is not None):
-                assert n < 15 + 90, "no picture drawn with a box"  # bounded: 9 s of video
+
+            def matched() -> bool:
+                """A picture drawn with the result about it (a session that lags more than
+                the view's recent frames is drawn, by design, on a newer picture: on a loaded
+                machine the first pictures may be such)."""
+                with watch.changed:
+                    return any(r.capture_ts_ns == watch.rendered_key for r in watch.drawn)
+
+            while not matched():
+                assert n < 15 + 150, "no picture drawn with its own result"  # 15 s of video
                 send(n)
                 n += 1
                 time.sleep(0.1)  # the stimulus: a 10 fps camera
             with watch.changed:
                 key, drawn, seq = watch.rendered_key, list(watch.drawn), watch.rendered_seq
             (r,) = drawn
-            assert r.capture_ts_ns == key and sent[key] == r.frame_seq  # its own picture
+            assert key is not None and sent[key] == r.frame_seq  # the service's number of it
             assert seq is None  # the view does not know the service's number of it
             reply = urllib.request.urlopen(view.url + "api/streams/mid/frame.jpg?after=0",
                                            timeout=30)

@@ -1,0 +1,152 @@
+"""The follow loop on a real clock with every real part in it: a virtual gimbal camera's views
+(640x360 of a shared sequence's pictures) published at 10 fps to a one-worker service, the
+pilot's rectangle on a real MAVLink link, ``arcf-mavlink``'s follower sending Gimbal Protocol
+v2 rates, a simulated gimbal moving by the commands as they arrive. Printed per sequence: the
+time from a frame's capture to the command its result caused arriving at the gimbal, when the
+target's true centre first stays within 10 % of the view's centre, and its largest offset
+after 3 s.
+
+    python benchmarks/follow_service.py                     # about 30 s
+    python benchmarks/follow_service.py --sequences truck4_2 --preset arcf-hc
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import math
+import os
+import platform
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+os.environ.setdefault("MAVLINK20", "1")
+from pymavlink import mavutil
+
+from arcf.adapters.gimbal import FollowSettings, GimbalTarget
+from arcf.adapters.mavlink import CameraConfig, MavlinkCameras
+from arcf.eval import load_dataset
+from arcf.loadtools.gimbalsim import SimulatedGimbal, VirtualCamera
+from arcf.loadtools.groundstation import GroundStation
+from arcf.loadtools.procs import ServiceProcess, free_port
+from arcf.service.client import TrackingClient
+
+mav = mavutil.mavlink
+VIEW = (640, 360)
+FPS = 10.0
+
+
+def cpu_model() -> str:
+    with open("/proc/cpuinfo") as f:
+        for line in f:
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    return platform.machine()
+
+
+def run(service: ServiceProcess, name: str, preset: str, seconds: float) -> dict[str, float]:
+    (seq,) = load_dataset("uav123_10fps", sequences=[name])
+    gt = np.asarray(seq.groundtruth, dtype=float)
+    first = seq.read_frame(0)
+    cam = VirtualCamera((first.shape[1], first.shape[0]), VIEW)
+    gimbal = SimulatedGimbal()
+    x, y, w, h = gt[0]
+    gimbal.yaw = (x - 1 + w / 2 - 0.25 * VIEW[0] - cam.world_size[0] / 2) / cam.px_per_deg
+    gimbal.pitch = -(y - 1 + h / 2 + 0.2 * VIEW[1] - cam.world_size[1] / 2) / cam.px_per_deg
+    port = free_port()
+    target = GimbalTarget(1, 1, settings=FollowSettings(hfov_deg=cam.hfov_deg))
+    latency: list[float] = []
+    offsets: list[tuple[float, float, float]] = []  # (t, x, y)
+    with TrackingClient(connect=[service.endpoint]) as camera, \
+            TrackingClient(connect=[service.endpoint]) as adapter:
+        endpoint = MavlinkCameras(adapter, f"udpin:127.0.0.1:{port}",
+                                  [CameraConfig(name, 100, follow=target)], preset=preset,
+                                  status_interval_s=0.0).start()
+        station = GroundStation(port, 100)
+        answered: list[int] = []  # the session's results in arrival order: its frames
+        results = camera.results(name, callback=lambda r: answered.append(r.frame_seq)
+                                 if r.status.value not in ("stale", "stopped") else None)
+        try:
+            deadline = time.monotonic() + 30
+            while not endpoint.link_up and time.monotonic() < deadline:
+                time.sleep(0.05)
+            captured: dict[int, float] = {}  # frame -> when its view was taken
+            seen = 0  # commands applied
+            t0 = last = time.monotonic()
+            k = 0
+            while (now := time.monotonic()) - t0 < seconds:
+                gimbal.step(now - last)
+                last = now
+                commands = station.since(0, "GIMBAL_MANAGER_SET_PITCHYAW")
+                for c in commands[seen:]:  # as they arrived: the newest rules
+                    gimbal.commanded = (math.degrees(c.yaw_rate), math.degrees(c.pitch_rate))
+                seen = len(commands)
+                i = min(len(seq) - 1, int((now - t0) * 10))  # the world at its own 10 fps
+                view = cam.view(seq.read_frame(i), gimbal)
+                _, jpeg = cv2.imencode(".jpg", view, [cv2.IMWRITE_JPEG_QUALITY, 90])
+                captured[k] = now  # the view is of this instant
+                camera.publish_frame(name, data=jpeg.tobytes(), seq=k,
+                                     capture_ts_ns=time.time_ns())
+                if k == 0:
+                    while endpoint.cameras[0].last_frame is None:
+                        time.sleep(0.01)
+                    bx, by, bw, bh = cam.to_view(gt[0], gimbal)
+                    station.command(mav.MAV_CMD_CAMERA_TRACK_RECTANGLE, (bx - 1) / VIEW[0],
+                                    (by - 1) / VIEW[1], (bx - 1 + bw) / VIEW[0],
+                                    (by - 1 + bh) / VIEW[1])
+                truth = cam.to_view(gt[i], gimbal)
+                offsets.append((now - t0, (truth[0] - 1 + truth[2] / 2) / VIEW[0] - 0.5,
+                                (truth[1] - 1 + truth[3] / 2) / VIEW[1] - 0.5))
+                k += 1
+                time.sleep(max(0.0, t0 + k / FPS - time.monotonic()))  # the camera's clock
+            # capture to command: the follower sends one command per result, in the results'
+            # order, unless its rate limit held one back (then the pairing is lost: no figure)
+            time.sleep(1.0)
+            arrivals = [t for t, m in list(station.received)
+                        if m.get_type() == "GIMBAL_MANAGER_SET_PITCHYAW"]
+            follower = endpoint.cameras[0].follower
+            assert follower is not None
+            if follower.counts["held"] == 0:
+                latency = [t - captured[f] for t, f in zip(arrivals, answered, strict=False)]
+        finally:
+            results.close()
+            station.close()
+            endpoint.close()
+    t = np.array([o[0] for o in offsets])
+    off = np.abs(np.array([o[1:] for o in offsets]))
+    inside = off.max(axis=1) < 0.10
+    settled = next((t[j] for j in range(len(t)) if inside[j:].all()), math.nan)
+    return {"latency_ms": 1e3 * float(np.median(latency)) if latency else math.nan,
+            "latency_p95_ms": 1e3 * float(np.percentile(latency, 95)) if latency else math.nan,
+            "settled_s": float(settled), "after_3s": float(off[t >= 3.0].max()),
+            "frames": len(offsets)}
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sequences", default="truck4_1,wakeboard10")
+    ap.add_argument("--preset", default="arcf-h")
+    ap.add_argument("--seconds", type=float, default=10.0)
+    args = ap.parse_args(argv)
+    print(f"# python benchmarks/follow_service.py {' '.join(argv or sys.argv[1:])}")
+    print(f"# {datetime.date.today()}, {os.cpu_count()} CPUs, {cpu_model()}, Python "
+          f"{platform.python_version()}; real clock, 10 fps")
+    print("\n| sequence | capture to command (median, p95) | settled within 10 % at | "
+          "largest offset after 3 s |\n| --- | --- | --- | --- |")
+    with ServiceProcess(workers=1) as service:
+        for name in args.sequences.split(","):
+            r = run(service, name, args.preset, args.seconds)
+            settled = "never" if math.isnan(r["settled_s"]) else f"{r['settled_s']:.1f} s"
+            print(f"| {name} | {r['latency_ms']:.0f} ms, {r['latency_p95_ms']:.0f} ms | "
+                  f"{settled} | {r['after_3s']:.3f} |", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
