@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import platform
 import sys
 import threading
 import time
@@ -31,18 +30,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from arcf.adapters.liveview import LiveView
 from arcf.eval import load_dataset
 from arcf.loadtools.procs import ServiceProcess
+from arcf.loadtools.system import cpu_model
 from arcf.schemas import Result
 from arcf.service.client import TrackingClient
-
-
-def cpu_name() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown CPU"
 
 
 def post(url: str, body: dict) -> dict:
@@ -112,7 +102,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             stop.set()
             view.close()
     print(f"# python benchmarks/click_to_track.py --boxes {args.boxes} --preset {args.preset}")
-    print(f"# {datetime.now(UTC):%Y-%m-%d %H:%M} UTC, {cpu_name()}")
+    print(f"# {datetime.now(UTC):%Y-%m-%d %H:%M} UTC, {cpu_model()}")
     print("| from the drag to | median (ms) | p95 (ms) | max (ms) |")
     print("| --- | ---: | ---: | ---: |")
     for name, values in times.items():

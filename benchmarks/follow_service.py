@@ -35,6 +35,7 @@ from arcf.eval import load_dataset
 from arcf.loadtools.gimbalsim import SimulatedGimbal, VirtualCamera
 from arcf.loadtools.groundstation import GroundStation
 from arcf.loadtools.procs import ServiceProcess, free_port
+from arcf.loadtools.system import cpu_model
 from arcf.service.client import TrackingClient
 
 mav = mavutil.mavlink
@@ -42,12 +43,6 @@ VIEW = (640, 360)
 FPS = 10.0
 
 
-def cpu_model() -> str:
-    with open("/proc/cpuinfo") as f:
-        for line in f:
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    return platform.machine()
 
 
 def run(service: ServiceProcess, name: str, preset: str, seconds: float) -> dict[str, float]:

@@ -320,7 +320,9 @@ def test_frames_after_the_service_ended_a_session_are_not_its_tail() -> None:
         rec.on_result(_result("s1", k))
     rec.on_sent(4)  # in flight when the service ended the session: its tail
     rec.on_result(_result("s1", 3, status="stopped"))
-    time.sleep(0.01)  # the stimulus: later frames are sent after the end arrived
+    ended_at = rec.ended[0].t
+    wait_until(lambda: time.monotonic() > ended_at, timeout=5,
+               what="the clock past the end")  # later frames are sent after the end arrived
     for k in range(5, 9):
         rec.on_sent(k)
     got = rec.accounting()
