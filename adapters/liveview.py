@@ -447,7 +447,7 @@ class LiveView:
         if path in _STATIC:
             name, kind = _STATIC[path]
             self._send(req, HTTPStatus.OK, kind,
-                       resources.files("adapters").joinpath("static", name).read_bytes())
+                       resources.files("arcf.adapters").joinpath("static", name).read_bytes())
         elif path == "/api/streams":
             self._send(req, HTTPStatus.OK, "application/json", self._streams())
         elif path == "/api/config":

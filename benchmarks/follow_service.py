@@ -21,6 +21,7 @@ import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -29,13 +30,14 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil
 
-from arcf.adapters.gimbal import FollowSettings, GimbalTarget
+from arcf.adapters.gimbal import FollowSettings, GimbalFollower, GimbalTarget
 from arcf.adapters.mavlink import CameraConfig, MavlinkCameras
 from arcf.eval import load_dataset
 from arcf.loadtools.gimbalsim import SimulatedGimbal, VirtualCamera
 from arcf.loadtools.groundstation import GroundStation
 from arcf.loadtools.procs import ServiceProcess, free_port
 from arcf.loadtools.system import cpu_model
+from arcf.schemas import Result
 from arcf.service.client import TrackingClient
 
 mav = mavutil.mavlink
@@ -43,6 +45,29 @@ VIEW = (640, 360)
 FPS = 10.0
 
 
+def _record_causes(follower: GimbalFollower | None) -> list[int | None]:
+    """Wraps the follower's result entry and send so that each rate command it sends is noted
+    with the frame whose result caused it, in sending order (measurement only)."""
+    assert follower is not None
+    caused: list[int | None] = []
+    current: list[int | None] = [None]
+    send, on_result = follower.send, follower.on_result
+
+    def noted_send(msg: Any) -> None:
+        if msg.get_type() == "GIMBAL_MANAGER_SET_PITCHYAW":
+            caused.append(current[0])
+        send(msg)
+
+    def noted_result(result: Result, size: tuple[int, int] | None, now: float) -> None:
+        current[0] = result.frame_seq
+        try:
+            on_result(result, size, now)
+        finally:
+            current[0] = None
+
+    follower.send = noted_send
+    follower.on_result = noted_result  # type: ignore[method-assign]
+    return caused
 
 
 def run(service: ServiceProcess, name: str, preset: str, seconds: float) -> dict[str, float]:
@@ -64,9 +89,7 @@ def run(service: ServiceProcess, name: str, preset: str, seconds: float) -> dict
                                   [CameraConfig(name, 100, follow=target)], preset=preset,
                                   status_interval_s=0.0).start()
         station = GroundStation(port, 100)
-        answered: list[int] = []  # the session's results in arrival order: its frames
-        results = camera.results(name, callback=lambda r: answered.append(r.frame_seq)
-                                 if r.status.value not in ("stale", "stopped") else None)
+        caused = _record_causes(endpoint.cameras[0].follower)
         try:
             deadline = time.monotonic() + 30
             while not endpoint.link_up and time.monotonic() < deadline:
@@ -100,17 +123,18 @@ def run(service: ServiceProcess, name: str, preset: str, seconds: float) -> dict
                                 (truth[1] - 1 + truth[3] / 2) / VIEW[1] - 0.5))
                 k += 1
                 time.sleep(max(0.0, t0 + k / FPS - time.monotonic()))  # the camera's clock
-            # capture to command: the follower sends one command per result, in the results'
-            # order, unless its rate limit held one back (then the pairing is lost: no figure)
-            time.sleep(1.0)
+            # capture to command: the j-th command to arrive is the j-th the follower sent
+            # (one UDP link on loopback keeps their order), and the follower's send says which
+            # frame's result caused it (None: a let-go between results, no frame to time)
+            deadline = time.monotonic() + 5
+            while len(station.since(0, "GIMBAL_MANAGER_SET_PITCHYAW")) < len(caused) and \
+                    time.monotonic() < deadline:
+                time.sleep(0.05)
             arrivals = [t for t, m in list(station.received)
                         if m.get_type() == "GIMBAL_MANAGER_SET_PITCHYAW"]
-            follower = endpoint.cameras[0].follower
-            assert follower is not None
-            if follower.counts["held"] == 0:
-                latency = [t - captured[f] for t, f in zip(arrivals, answered, strict=False)]
+            latency = [t - captured[f] for t, f in zip(arrivals, caused, strict=False)
+                       if f is not None and f in captured]
         finally:
-            results.close()
             station.close()
             endpoint.close()
     t = np.array([o[0] for o in offsets])

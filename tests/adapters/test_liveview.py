@@ -5,7 +5,6 @@ a stream that stops shows its session as stale (no frames) until its frames resu
 
 from __future__ import annotations
 
-import os
 import shutil
 import threading
 import time
@@ -30,8 +29,6 @@ from arcf.service.client import TrackingClient
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 pytestmark = [pytest.mark.integration,
               pytest.mark.skipif(CHROMIUM is None, reason="needs Chromium (apt: chromium)")]
-#: where the README's picture is written when ARCF_SCREENSHOT=1
-PICTURE = Path(__file__).resolve().parents[2] / "docs" / "img" / "liveview.png"
 
 
 @pytest.fixture(scope="module")
@@ -110,8 +107,6 @@ def test_the_page_shows_the_stream_with_its_boxes_and_updates(frames, tmp_path: 
                 img = page.locator("#video")
                 shot = tmp_path / "video.png"
                 img.screenshot(path=str(shot))
-                if os.environ.get("ARCF_SCREENSHOT"):
-                    page.screenshot(path=str(PICTURE), full_page=True)
                 natural = page.evaluate("document.getElementById('video').naturalWidth")
                 browser.close()
         finally:

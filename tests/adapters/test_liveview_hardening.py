@@ -5,10 +5,14 @@ malformed query is answered, and pictures are bounded by their header before dec
 
 from __future__ import annotations
 
+import json
 import socket
 import struct
+import subprocess
+import sys
 import zlib
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -157,3 +161,33 @@ def test_pictures_are_bounded_by_their_header() -> None:
     with pytest.raises(ValueError, match="above 100 pixels"):
         _picture(frame("gray8", bytes(200), 20, 10), 100)
     assert _picture(frame("gray8", bytes(200), 20, 10), 200).shape == (10, 20)
+
+
+#: run outside the repository: the view, offline, fetching each of its own files
+_SERVED = """
+import json, sys, types, urllib.request
+from arcf.adapters.liveview import _STATIC, LiveView
+client = types.SimpleNamespace(results=None, frames=None)
+view = LiveView(client, "127.0.0.1", 0, video_key=None)
+try:
+    got = {}
+    for path in _STATIC:
+        with urllib.request.urlopen(view.url.rstrip("/") + path, timeout=30) as reply:
+            got[path] = [reply.status, len(reply.read())]
+    print(json.dumps(got))
+finally:
+    view.close()
+"""
+
+
+def test_the_page_is_served_by_the_installed_package(tmp_path: Path) -> None:
+    """The view's own files come from the installed ``arcf.adapters``, not from a folder that
+    only a process started in the repository can see: started elsewhere (``-P``: not even
+    the current directory on the path), every static path is answered with its file."""
+    static = Path(liveview.__file__).parent / "static"
+    run = subprocess.run([sys.executable, "-P", "-c", _SERVED], cwd=tmp_path,
+                         capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr[-2000:]
+    got = json.loads(run.stdout.strip().splitlines()[-1])
+    assert got == {path: [200, (static / name).stat().st_size]
+                   for path, (name, _) in liveview._STATIC.items()}, run.stderr[-2000:]
