@@ -75,8 +75,10 @@ class Pacing:
     - **as fast as possible** (``fps`` 0, ``in_flight`` 0): a flood, for overload tests.
     - **closed loop** (``in_flight`` > 0): frame i is sent only once frame i - in_flight has
       a result from every session of the stream (or after ``wait_s``). With ``fps`` 0 this
-      saturates the workers without a single drop; ``in_flight`` 1 is **lock-step**, one frame
-      at a time, so latency has no queueing in it.
+      saturates the workers without a single drop, unless it outruns the service's
+      per-stream rate limit (``max_stream_fps``, 60 by default: a fast worker answers a small
+      target in under 10 ms, and a frame refused there has no result); ``in_flight`` 1 is
+      **lock-step**, one frame at a time, so latency has no queueing in it.
     """
 
     fps: float = 10.0
@@ -93,8 +95,13 @@ class Pacing:
         return cls(fps=fps, in_flight=in_flight)
 
     @classmethod
-    def lock_step(cls) -> Pacing:
-        return cls(fps=0.0, in_flight=1, wait_s=30.0)
+    def lock_step(cls, fps: float = 30.0) -> Pacing:
+        """One frame at a time, each once the previous one is answered, and no faster than
+        ``fps`` (a camera's rate, half the service's default ``max_stream_fps``: a replay
+        that outran the limit would have frames refused, and every refused frame would wait
+        ``wait_s`` for an answer that never comes). ``fps`` 0: as fast as the answers come,
+        for a service whose limit is raised."""
+        return cls(fps=fps, in_flight=1, wait_s=30.0)
 
     def __post_init__(self) -> None:
         if self.fps < 0 or self.in_flight < 0 or self.wait_s < 0:

@@ -56,7 +56,8 @@ class ServiceError(RuntimeError):
 
 
 class MessageStream(Generic[M]):
-    """Messages of one key expression (results of a stream or a session, frames of a stream),
+    """Messages of one key expression (results of a stream or a session, a stream's frames or
+    errors),
     received by a callback or iterated. What does not validate is counted and skipped."""
 
     def __init__(self, client: TrackingClient, key: str,
@@ -261,6 +262,16 @@ class TrackingClient:
         key = (self.keys.results(stream_id, session_id) if session_id
                else self.keys.results_of_stream(stream_id))
         return MessageStream(self, key, callback, maxsize, Result)
+
+    def errors(self, stream_id: str,
+               callback: Callable[[ErrorMessage], None] | None = None,
+               maxsize: int = 1000) -> MessageStream[ErrorMessage]:
+        """Watch what the service refuses of a stream's frames (``<prefix>/streams/<stream>/
+        errors``: rate limited, oversized, undecodable, out of order, a jump in the numbering),
+        one notice per code and second at most, each refused frame counted in the metrics. A
+        frame refused here has no result; the next result's ``dropped`` counts it."""
+        return MessageStream(self, self.keys.errors(stream_id), callback, maxsize,
+                             ErrorMessage)
 
     def frames(self, stream_id: str, callback: Callable[[Frame], None] | None = None,
                maxsize: int = 8) -> MessageStream[Frame]:

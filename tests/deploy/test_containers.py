@@ -142,21 +142,28 @@ def test_host_client_tracks_a_real_sequence_through_the_router(stack: Stack) -> 
     reference = arcf.create_tracker("bacf")
     expected = [reference.init(seq.read_frame(0), seq.init_box).box]
     expected += [reference.update(seq.read_frame(i)).box for i in range(1, len(seq))]
-    # lock step (frame i once frame i - 1 is answered): a frame the service sheds because the
-    # machine stalled would be counted, not lost, but its box would leave the library's run.
-    # A replay publishes with BLOCK (docs/wire-contract.md): with live video's DROP a stalled
-    # machine lets Zenoh drop a frame's fragments on the way through the router.
+    # lock step (frame i once frame i - 1 is answered, at a camera's 30 fps at most: faster,
+    # the instances' default per-stream limit of 60 fps refuses frames): a frame the service
+    # sheds because the machine stalled would be counted, not lost, but its box would leave
+    # the library's run. A replay publishes with BLOCK (docs/wire-contract.md): with live
+    # video's DROP a stalled machine lets Zenoh drop a frame's fragments on the way through
+    # the router.
+    refused: list[str] = []
     with TrackingClient(connect=[f"tcp/127.0.0.1:{stack.router_port}"],
                         frame_congestion="block") as client, \
             Fleet(client, [Clip.of(seq)], preset="bacf", pacing=Pacing.lock_step()) as fleet:
         assert sorted(client.status().instances) == list(INSTANCES)
+        watch = client.errors("cam-host", callback=lambda m: refused.append(
+            f"{m.code.value}: {m.message}"))
         (stream,) = fleet.add(names=["cam-host"], session_id=lambda *_: "s-host",
                               frames=len(seq))  # bounded: one pass
         assert fleet.wait_published(timeout=30 * len(seq)), "frames not all published"
         fleet.settle(timeout=20)
+        watch.close()
         got = {r.frame_seq: r.result for r in stream.record.received}
     holes = sorted(set(range(len(seq))) - set(got))
-    assert not holes, f"frames without a result: {_explain(holes, got, stack)}"
+    assert not holes, f"frames without a result: {_explain(holes, got, stack)}; {refused=}"
+    assert not refused
     boxes = np.array([got[i].box for i in range(len(seq))])
     centre = lambda b: b[:, :2] + b[:, 2:] / 2  # noqa: E731
     dist = np.linalg.norm(centre(boxes) - centre(np.array(expected)), axis=1)

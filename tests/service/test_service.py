@@ -409,13 +409,11 @@ def test_limits_stale_frames_and_bombs_are_refused_counted_and_harmless(frames, 
     """Each refusal is a counted error with a clear code, and the sessions go on."""
 
     seq, data = frames
-    keys = KeySpace()
     svc = _Service("--max-stream-fps", "4", "--max-sessions", "2", "--max-pixels", "2000000")
     try:
         with TrackingClient(connect=[svc.endpoint], frame_congestion="block") as client:
-            errors: list = []
-            sub = client.session.declare_subscriber(keys.errors("lim"),
-                                                    lambda s: errors.append(s))
+            errors: list[str] = []  # the SDK's watch of what the service refuses
+            watch = client.errors("lim", callback=lambda m: errors.append(m.code.value))
             results = client.results("lim")
             client.start("lim", seq.init_box, preset="bacf", frame_seq=0)
             client.start("lim-2", seq.init_box, preset="bacf")
@@ -463,12 +461,13 @@ def test_limits_stale_frames_and_bombs_are_refused_counted_and_harmless(frames, 
             codes: list[str] = []
 
             def noticed() -> bool:
-                codes[:] = [decode_error_code(s) for s in list(errors)]
+                codes[:] = list(errors)
                 return all(c in codes for c in ("image_too_large", "stale_frame",
                                                 "rate_limited"))
 
             wait_until(noticed, timeout=30, what=f"the three refusals noticed ({codes})")
-            sub.undeclare()
+            watch.close()
+            assert watch.malformed == 0
         # each refusal counted under its code: the refused start, two stale frames, the bomb,
         # then the flood's excess, each one of the frames without a result (the others were
         # dropped for the newest, and counted)
