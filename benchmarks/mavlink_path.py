@@ -1,9 +1,12 @@
 """The MAVLink path: what ``arcf-mavlink`` adds between the service's results and a ground
 station, and the endpoint driven by MAVProxy, an independent ground-station program.
 
-1. **Added latency.** A service, a station publishing a real sequence's JPEG frames at 10 fps,
-   ``arcf-mavlink`` on a loopback UDP port and a ground station played with pymavlink, which
-   asks for ``CAMERA_TRACKING_IMAGE_STATUS`` at ``--status-hz`` and starts tracking with
+1. **Added latency.** A service, a station publishing a real sequence at 10 fps (its JPEG
+   frames; with ``--encoding h264`` H.264 access units as SDK frames, with ``--encoding
+   video-key`` the same units as CDR ``CompressedVideo`` on ``video/<stream>/stream``, whose
+   picture size the endpoint reads from the keyframes), ``arcf-mavlink`` on a loopback UDP
+   port and a ground station played with pymavlink, which asks for
+   ``CAMERA_TRACKING_IMAGE_STATUS`` at ``--status-hz`` and starts tracking with
    ``MAV_CMD_CAMERA_TRACK_RECTANGLE``. Every status received is matched to the result whose
    box it carries (received by the same process on the results key); printed: the delay
    from the result to the first status carrying it, and from the frame's capture to it.
@@ -13,6 +16,7 @@ station, and the endpoint driven by MAVProxy, an independent ground-station prog
    commands; its console output (the acknowledgements it decoded) is printed.
 
     python benchmarks/mavlink_path.py                      # ~40 s
+    python benchmarks/mavlink_path.py --encoding video-key
     python benchmarks/mavlink_path.py --mavproxy --setup-mavproxy
 """
 
@@ -37,8 +41,12 @@ from pymavlink import mavutil
 from arcf.adapters.mavlink import CameraConfig, MavlinkCameras
 from arcf.eval import load_dataset
 from arcf.loadtools.procs import ServiceProcess, free_port
+from arcf.loadtools.system import cpu_model
+from arcf.loadtools.video import encode_video
 from arcf.schemas import Result
 from arcf.service.client import TrackingClient
+from arcf.service.decoding import decode_compressed
+from arcf.service.foxglove import compressed_video
 
 ROOT = Path(__file__).resolve().parents[1]
 MAVPROXY_VENV = ROOT / ".venv-mavproxy"
@@ -62,7 +70,7 @@ def setup_mavproxy() -> Path:
 class Rig:
     """Service, frame publisher (10 fps, the sequence looped) and the MAVLink endpoint."""
 
-    def __init__(self, sequence: str, status_hz: float) -> None:
+    def __init__(self, sequence: str, status_hz: float, encoding: str = "jpeg") -> None:
         (self.seq,) = load_dataset("uav123_10fps", sequences=[sequence])
         self.service = ServiceProcess(workers=1)
         self.port = free_port()
@@ -76,7 +84,12 @@ class Rig:
         self.sub = self.publisher.results(
             "cam1", callback=lambda r: self.results.append((time.monotonic(), r)))
         self._stop = threading.Event()
+        self.encoding = encoding
+        self.last_sent = -1  # the sequence's frame the camera sent last
         data = [p.read_bytes() for p in self.seq.frames]
+        if encoding != "jpeg":  # a camera's H.264: a keyframe with its headers every 10
+            data = encode_video((decode_compressed(d) for d in data), "h264", fps=10, gop=10,
+                                repeat_headers=True)
         self._thread = threading.Thread(target=self._publish, args=(data,), daemon=True)
         self._thread.start()
 
@@ -84,13 +97,19 @@ class Rig:
         for i in range(1200):  # bounded: 2 minutes at 10 fps
             if self._stop.is_set():
                 return
-            self.publisher.publish_frame("cam1", data=data[i % len(data)], seq=i)
+            unit = data[i % len(data)]
+            if self.encoding == "video-key":
+                self.publisher.session.put("video/cam1/stream",
+                                           compressed_video(unit, "h264", time.time_ns()))
+            elif self.encoding == "h264":
+                self.publisher.publish_frame("cam1", data=unit, encoding="h264", seq=i)
+            else:
+                self.publisher.publish_frame("cam1", data=unit, seq=i)
+            self.last_sent = i
             time.sleep(0.1)
 
     def gt_rectangle(self) -> tuple[float, float, float, float]:
-        frame = self.endpoint.cameras[0].last_frame
-        assert frame is not None
-        x, y, w, h = np.asarray(self.seq.groundtruth)[frame.seq % len(self.seq.frames)]
+        x, y, w, h = np.asarray(self.seq.groundtruth)[self.last_sent % len(self.seq.frames)]
         return (x - 1) / W, (y - 1) / H, (x - 1 + w) / W, (y - 1 + h) / H
 
     def close(self) -> None:
@@ -144,7 +163,8 @@ def latency(rig: Rig, seconds: float, status_hz: float) -> None:
         delays.append(1e3 * (t - tr))
         ages.append((time.time_ns() - 1e9 * (time.monotonic() - t) - r.capture_ts_ns) / 1e6)
     d, a = np.array(delays), np.array(ages)
-    print(f"status at {status_hz:g} Hz for {seconds:g} s: {len(statuses)} statuses, "
+    print(f"{rig.encoding} frames; status at {status_hz:g} Hz for {seconds:g} s: "
+          f"{len(statuses)} statuses, "
           f"{len(d)} results carried, {unmatched} unmatched")
     print(f"  result on its key -> first status carrying it: median {np.median(d):.1f} ms, "
           f"p95 {np.percentile(d, 95):.1f} ms, max {d.max():.1f} ms")
@@ -190,8 +210,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--status-hz", type=float, default=10.0)
     ap.add_argument("--mavproxy", action="store_true")
     ap.add_argument("--setup-mavproxy", action="store_true")
+    ap.add_argument("--encoding", choices=("jpeg", "h264", "video-key"), default="jpeg")
     args = ap.parse_args(argv)
-    rig = Rig(args.sequence, args.status_hz)
+    print(f"# python benchmarks/mavlink_path.py {' '.join(argv or sys.argv[1:])}")
+    print(f"# {time.strftime('%Y-%m-%d')}, {os.cpu_count()} CPUs, {cpu_model()}")
+    rig = Rig(args.sequence, args.status_hz, args.encoding)
     try:
         if args.mavproxy:
             script = MAVPROXY_VENV / "bin" / "mavproxy.py"
