@@ -3,22 +3,27 @@
     arcf-demo                                  # UAV123@10fps wakeboard7 at 10 fps, arcf-hc
     arcf-demo --dataset dtb70 --sequence Animal3 --preset arcf-h --fps 30 --limit 100
     arcf-demo --encoding h264                  # the same frames as a drone's H.264 video
+    arcf-demo -e tcp/127.0.0.1:7447 --stream cam1   # through a service that is already running
 
 The service runs as a child process (its own embedded Zenoh router on loopback), exactly as
-``arcf-service`` would; this process is a ground station: it publishes the JPEG frames, starts a
-tracking session from the ground truth's first box and prints each result as it arrives.
+``arcf-service`` would, unless ``--connect`` names a running one; this process is a ground
+station: it publishes the JPEG frames, starts a tracking session from the ground truth's first
+box and prints each result as it arrives.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import sys
+from collections.abc import Iterator
 
 import numpy as np
 
 from arcf.eval import load_dataset
 from arcf.service.client import TrackingClient
+from arcf.service.settings import ZENOH_SHORT_FLAGS
 
 from .driver import Clip, Fleet, Pacing, SimulatedStream
 from .ledger import Received, percentiles
@@ -32,8 +37,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--preset", default="arcf-hc")
     ap.add_argument("--fps", type=float, default=10.0, help="replay rate (0: as fast as possible)")
     ap.add_argument("--limit", type=int, default=0, help="replay only the first N frames")
-    ap.add_argument("--port", type=int, default=7447)
-    ap.add_argument("--workers", type=int, default=0, help="service workers (default: cores)")
+    ap.add_argument("--port", type=int, default=7447,
+                    help="the started service's router port (loopback)")
+    ap.add_argument("--workers", type=int, default=0,
+                    help="the started service's workers (default: cores)")
+    ap.add_argument(ZENOH_SHORT_FLAGS["connect"], "--connect", action="append",
+                    metavar="ENDPOINT", help="a running service's Zenoh endpoint (repeatable): "
+                    "replay through it instead of starting one")
+    ap.add_argument("--stream", default="", help="the stream's name (default: "
+                    "<dataset>-<sequence>)")
     ap.add_argument("--encoding", choices=("jpeg", "h264", "h265"), default="jpeg",
                     help="send the frames as JPEG files or as H.264 / H.265 video")
     args = ap.parse_args(argv)
@@ -61,18 +73,16 @@ def main(argv: list[str] | None = None) -> int:
               f"psr {r.psr:5.1f} aberrance {r.aberrance:.4f} "
               f"dropped {r.dropped} error {err:5.1f} px", flush=True)
 
-    print(f"starting arcf-service on tcp/127.0.0.1:{args.port}", flush=True)
-    try:
-        service = ServiceProcess(listen=f"tcp/127.0.0.1:{args.port}",
-                                 workers=args.workers or os.cpu_count() or 1, quiet=False)
-    except RuntimeError as e:
-        raise SystemExit(f"arcf-demo: the service did not start ({e})") from e
-    try:
-        print(service.ready_line, flush=True)
-        with TrackingClient(connect=[service.endpoint]) as client:
+    with _service(args) as endpoints:
+        try:
+            client = TrackingClient(connect=endpoints)
+        except Exception as e:  # zenoh's error: no router there
+            raise SystemExit(f"arcf-demo: no service at {', '.join(endpoints)} ({e})") from e
+        with client:
             fleet = Fleet(client, [clip], preset=args.preset, pacing=Pacing(fps=args.fps),
                           on_result=show)
-            (stream,) = fleet.add(names=[f"{args.dataset}-{args.sequence}"], frames=len(clip))
+            name = args.stream or f"{args.dataset}-{args.sequence}"
+            (stream,) = fleet.add(names=[name], frames=len(clip))
             print(f"session {stream.sessions[0]} on stream {stream.name}: "
                   f"{stream.acks[0].message}", flush=True)
             fleet.wait_published(timeout=len(clip) * 10.0)
@@ -83,9 +93,27 @@ def main(argv: list[str] | None = None) -> int:
         print(f"\n{len(received)}/{len(clip)} frames tracked; end-to-end latency p50 "
               f"{lat['p50']:.1f} ms, p99 {lat['p99']:.1f} ms; mean centre error vs ground "
               f"truth {np.nanmean(errors):.1f} px", flush=True)
+    return 0
+
+
+@contextlib.contextmanager
+def _service(args: argparse.Namespace) -> Iterator[list[str]]:
+    """The endpoints to replay through: ``--connect``'s, or a service started for the run
+    (stopped after it)."""
+    if args.connect:
+        yield list(args.connect)
+        return
+    print(f"starting arcf-service on tcp/127.0.0.1:{args.port}", flush=True)
+    try:
+        service = ServiceProcess(listen=f"tcp/127.0.0.1:{args.port}",
+                                 workers=args.workers or os.cpu_count() or 1, quiet=False)
+    except RuntimeError as e:
+        raise SystemExit(f"arcf-demo: the service did not start ({e})") from e
+    try:
+        print(service.ready_line, flush=True)
+        yield [service.endpoint]
     finally:
         service.stop()
-    return 0
 
 
 if __name__ == "__main__":
