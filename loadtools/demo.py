@@ -20,6 +20,7 @@ import sys
 from collections.abc import Iterator
 
 import numpy as np
+import zenoh
 
 from arcf.eval import load_dataset
 from arcf.service.client import TrackingClient
@@ -76,7 +77,7 @@ def main(argv: list[str] | None = None) -> int:
     with _service(args) as endpoints:
         try:
             client = TrackingClient(connect=endpoints)
-        except Exception as e:  # zenoh's error: no router there
+        except zenoh.ZError as e:  # no router there
             raise SystemExit(f"arcf-demo: no service at {', '.join(endpoints)} ({e})") from e
         with client:
             fleet = Fleet(client, [clip], preset=args.preset, pacing=Pacing(fps=args.fps),

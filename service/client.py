@@ -57,8 +57,8 @@ class ServiceError(RuntimeError):
 
 class MessageStream(Generic[M]):
     """Messages of one key expression (results of a stream or a session, a stream's frames or
-    errors),
-    received by a callback or iterated. What does not validate is counted and skipped."""
+    errors), received by a callback or iterated. What does not validate is counted and
+    skipped."""
 
     def __init__(self, client: TrackingClient, key: str,
                  callback: Callable[[M], None] | None, maxsize: int,

@@ -41,7 +41,8 @@ def test_the_demo_starts_its_service_and_replays_a_sequence(capsys) -> None:
                       "--port", str(port)]) == 0
     out = capsys.readouterr().out
     assert f"starting arcf-service on tcp/127.0.0.1:{port}" in out
-    assert "on stream uav123_10fps-wakeboard7" in out
+    default_stream = "-".join(("uav123_10fps", "wakeboard7"))  # <dataset>-<sequence>
+    assert f"on stream {default_stream}:" in out
     _accounted(out)
 
 

@@ -483,12 +483,6 @@ def test_limits_stale_frames_and_bombs_are_refused_counted_and_harmless(frames, 
         assert svc.stop() == 0
 
 
-def decode_error_code(sample) -> str:
-    from arcf.schemas import ErrorMessage, decode
-
-    return decode(sample.payload.to_bytes(), expected=ErrorMessage).code.value
-
-
 def test_sigterm_finishes_in_flight_frames_and_sends_final_statuses(frames) -> None:
     seq, data = frames
     svc = _Service()
