@@ -3,6 +3,7 @@ Correlation Filters for Real-Time UAV Tracking", ICCV 2019) in NumPy/OpenCV.
 
 >>> import arcf
 >>> tracker = arcf.create_tracker("arcf-hc")           # or "arcf-h", "bacf"; overrides by keyword
+>>> # "nanotrack", "vittrack": Siamese networks (OpenCV); "arcf-nano": NanoTrack checked by ARCF
 >>> tracker.init(frame, (x, y, w, h))                  # doctest: +SKIP
 >>> result = tracker.update(next_frame)                # doctest: +SKIP
 >>> result.box, result.peak, result.psr, result.aberrance  # doctest: +SKIP
@@ -27,7 +28,10 @@ if TYPE_CHECKING:
         NotInitializedError,
         UnknownPresetError,
     )
+    from .hybrid import HybridTracker
+    from .models import ModelNotFoundError
     from .presets import (
+        ALL_PRESETS,
         ARCF_H,
         ARCF_HC,
         BACF,
@@ -38,7 +42,8 @@ if TYPE_CHECKING:
         make_params,
     )
     from .run import SequenceRun, Step, run_sequence, track_frames
-    from .tracker import ARCFTracker, TrackResult, create_tracker
+    from .siamese import SiameseTracker
+    from .tracker import ARCFTracker, Tracker, TrackResult, create_tracker
     from .warmup import warm_up
 
 try:  # the one place the version is written is pyproject.toml
@@ -49,11 +54,15 @@ except PackageNotFoundError:  # a source tree that was never installed
 #: public name -> the module that defines it
 _HOME = {
     **dict.fromkeys(("ARCFError", "ColorNamesNotFoundError", "InvalidBoxError",
-                     "InvalidFrameError", "NotInitializedError", "UnknownPresetError"), "errors"),
-    **dict.fromkeys(("ARCF_H", "ARCF_HC", "BACF", "PRESETS", "RELEASE_COMPATIBLE",
+                     "InvalidFrameError",
+    "ModelNotFoundError", "NotInitializedError", "UnknownPresetError"), "errors"),
+    **dict.fromkeys(("ALL_PRESETS", "ARCF_H", "ARCF_HC", "BACF", "PRESETS", "RELEASE_COMPATIBLE",
                      "ScaleFilterParams", "TrackerParams", "make_params"), "presets"),
     **dict.fromkeys(("SequenceRun", "Step", "run_sequence", "track_frames"), "run"),
-    **dict.fromkeys(("ARCFTracker", "TrackResult", "create_tracker"), "tracker"),
+    **dict.fromkeys(("ARCFTracker", "TrackResult", "Tracker", "create_tracker"), "tracker"),
+    "SiameseTracker": "siamese",
+    "HybridTracker": "hybrid",
+    "ModelNotFoundError": "models",
     "warm_up": "warmup",
 }
 
@@ -72,6 +81,7 @@ def __dir__() -> list[str]:
 
 
 __all__ = [
+    "ALL_PRESETS",
     "ARCF_H",
     "ARCF_HC",
     "BACF",
@@ -80,13 +90,17 @@ __all__ = [
     "ARCFError",
     "ARCFTracker",
     "ColorNamesNotFoundError",
+    "HybridTracker",
     "InvalidBoxError",
     "InvalidFrameError",
+    "ModelNotFoundError",
     "NotInitializedError",
     "ScaleFilterParams",
     "SequenceRun",
+    "SiameseTracker",
     "Step",
     "TrackResult",
+    "Tracker",
     "TrackerParams",
     "UnknownPresetError",
     "create_tracker",

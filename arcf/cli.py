@@ -21,7 +21,7 @@ from . import __version__
 from .errors import ARCFError
 from .eval.datasets import DatasetError
 from .eval.datasets import list_frames as dataset_frames
-from .presets import PRESETS
+from .presets import ALL_PRESETS
 from .run import track_frames
 from .tracker import create_tracker
 
@@ -166,7 +166,7 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("frames", help="folder of frames (jpg/png/...), sorted naturally by name")
     t.add_argument("--box", type=parse_box, help="initial box x,y,w,h (1-based pixel frame)")
     t.add_argument("--init-from", help="annotation file whose first row is the initial box")
-    t.add_argument("--preset", default="arcf-hc", choices=sorted(PRESETS))
+    t.add_argument("--preset", default="arcf-hc", choices=sorted(ALL_PRESETS))
     t.add_argument(
         "--set", action="append", type=parse_override, metavar="KEY=VALUE",
         help="override a preset parameter, e.g. --set aberrance=release --set gamma=0.5; "

@@ -286,6 +286,117 @@ BACF = dataclasses.replace(ARCF_H, name="bacf", gamma=0.0)
 
 PRESETS: dict[str, TrackerParams] = {p.name: p for p in (ARCF_H, ARCF_HC, BACF)}
 
+SiameseNetwork = Literal["nanotrack", "vittrack"]
+
+
+@dataclass(frozen=True)
+class SiameseParams:
+    """A Siamese tracker run by OpenCV (``cv2.TrackerNano`` / ``cv2.TrackerVit``) on the
+    network files of :mod:`arcf.models`. Its box is the network's; its state is read from the
+    network's score against the score of the same track's recent trusted frames, by the same
+    state machine as ARCF's (:class:`~arcf.state.TrackMonitor`, the score in place of PSR x
+    peak); its confidence is the score itself."""
+
+    name: str
+    network: SiameseNetwork
+    #: Score below which the tracker reports the target "not located" (VitTrack: OpenCV's
+    #: ``TrackerVit_Params.tracking_score_threshold`` default 0.2; NanoTrack has none).
+    score_threshold: float = 0.0
+    #: The state machine's thresholds (the confidence model's weights are not used).
+    state: StateParams = field(default_factory=lambda: StateParams(reacquire=False))
+
+
+@dataclass(frozen=True)
+class HybridParams:
+    """ARCF beside a Siamese network (:mod:`arcf.hybrid`): the network gives the box, an ARCF
+    filter steered onto that box gives the aberrance, the track state and the confidence, and
+    its whole-frame search re-detects a lost target and restarts the network there."""
+
+    name: str
+    network: SiameseNetwork
+    #: The verifier: an ARCF filter at the network's box and scale, its re-acquisition on.
+    verifier: TrackerParams
+    #: A re-acquired place restarts the network when it lies farther than this many target
+    #: sizes from the network's own box (a choice: a network already on it keeps its template).
+    restart_distance: float = 1.0
+    #: The agreement that brings a coasting or lost track back where the network is: on
+    #: ``agree_frames`` frames in a row, the network's score at least ``agree_score`` of its
+    #: recent level, the filter's strength at its box at least ``state.coast_below`` (it sees
+    #: something like its target there) and the filter's own peak within ``agree_distance``
+    #: target sizes of the network's box. Why: a target that changes its look fast (a
+    #: wakeboarder turning) weakens the filter, which then stops learning, while the network,
+    #: which never learns, still holds it; a hidden target weakens both (choices, measured in
+    #: docs/track-state.md).
+    agree_frames: int = 3
+    agree_score: float = 0.96
+    agree_distance: float = 0.25
+
+
+NANOTRACK = SiameseParams(name="nanotrack", network="nanotrack")
+VITTRACK = SiameseParams(name="vittrack", network="vittrack", score_threshold=0.2)
+
+#: ARCF-H as the hybrid's verifier: one scale (the network measures the target's size, so the
+#: five-scale search of the release would only cost), everything else ARCF-H's.
+#: Its confidence model is its own: the filter's response at another tracker's box reads
+#: differently from its response at its own (fitted by ``benchmarks/track_state.py --presets
+#: arcf-nano --fit`` on the 9 shared sequences and the 3 occlusion clips, docs/track-state.md).
+ARCF_NANO = HybridParams(
+    name="arcf-nano", network="nanotrack",
+    verifier=dataclasses.replace(
+        ARCF_H, name="arcf-nano.verifier", n_scales=1,
+        state=StateParams(weights=(1.5755, 2.4888, -0.5198, -3.0910, 0.4395, 0.4837),
+                          bias=0.6761)))
+
+#: every preset a tracker can be created from: ARCF's (overridable), the Siamese trackers and
+#: the hybrid (as they are)
+ALL_PRESETS: dict[str, TrackerParams | SiameseParams | HybridParams] = {
+    **PRESETS, **{p.name: p for p in (NANOTRACK, VITTRACK, ARCF_NANO)}}
+
+
+def available_presets(models_dir: Any = None) -> dict[str, str]:
+    """Every preset, and why it cannot run here ("" when it can): a Siamese network's files
+    missing or altered under ``models_dir`` (:func:`arcf.models.model_paths`)."""
+    from .models import ModelNotFoundError, model_paths
+
+    out: dict[str, str] = {}
+    checked: dict[str, str] = {}
+    for name, p in ALL_PRESETS.items():
+        network = getattr(p, "network", None)
+        if network is None:
+            out[name] = ""
+            continue
+        if network not in checked:
+            try:
+                model_paths(network, models_dir)
+                checked[network] = ""
+            except ModelNotFoundError as exc:
+                checked[network] = str(exc)
+        out[name] = checked[network]
+    return out
+
+
+def preset_params(preset: str | TrackerParams | SiameseParams | HybridParams,
+                  **overrides: Any) -> TrackerParams | SiameseParams | HybridParams:
+    """Any preset's parameters: ARCF's with :func:`make_params`' overrides, the Siamese
+    trackers' and the hybrid's as they are (an override is refused, naming the preset)."""
+    if isinstance(preset, (SiameseParams, HybridParams)):
+        base: TrackerParams | SiameseParams | HybridParams = preset
+    elif isinstance(preset, TrackerParams):
+        return make_params(preset, **overrides)
+    else:
+        key = str(preset).lower().replace("_", "-")
+        if key not in ALL_PRESETS:
+            raise UnknownPresetError(
+                f"unknown preset {preset!r}; choose one of {', '.join(sorted(ALL_PRESETS))}")
+        base = ALL_PRESETS[key]
+        if isinstance(base, TrackerParams):
+            return make_params(base, **overrides)
+    if overrides:
+        raise InvalidParameterError(
+            f"preset {base.name!r} takes no overrides (got {sorted(overrides)}); its parameters "
+            "are the network's and OpenCV's")
+    return base
+
 #: The overrides that turn a preset into the authors' release, the configuration whose boxes
 #: are compared with the release's own runs (docs/benchmarks.md, "Fidelity"):
 #: ``create_tracker("arcf-h", **RELEASE_COMPATIBLE)``. fHOG replays the SSE instructions of

@@ -10,7 +10,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .tracker import ARCFTracker, Box, TrackResult
+from .tracker import Box, Tracker, TrackResult
 
 
 @dataclass
@@ -39,7 +39,7 @@ class Step(NamedTuple):
 
 
 def track_frames(
-    tracker: ARCFTracker, frames: Iterable[np.ndarray], init_box: Box
+    tracker: Tracker, frames: Iterable[np.ndarray], init_box: Box
 ) -> Iterator[Step]:
     """The one tracking loop: ``init`` on the first frame, ``update`` on every later one.
 
@@ -61,7 +61,7 @@ def track_frames(
         yield Step(frame, result, time.perf_counter() - t0)
 
 
-def run_sequence(tracker: ARCFTracker, frames: Iterable[np.ndarray], init_box: Box) -> SequenceRun:
+def run_sequence(tracker: Tracker, frames: Iterable[np.ndarray], init_box: Box) -> SequenceRun:
     """One-pass evaluation of a whole sequence (OPE: init on the first frame, never re-init)."""
     run = SequenceRun()
     for step in track_frames(tracker, frames, init_box):

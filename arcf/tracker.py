@@ -19,7 +19,7 @@ import math
 from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import cv2
 import numpy as np
@@ -50,7 +50,7 @@ from .fourier import (
     shift_spectrum,
     spatial_response,
 )
-from .presets import TrackerParams, make_params
+from .presets import HybridParams, SiameseParams, TrackerParams, preset_params
 from .reacquire import TEMPLATE_EVERY, TEMPLATE_KEEP, TargetTemplate
 from .scale import DSSTScaleFilter, scale_limits, search_scale_factors
 from .state import TrackMonitor, TrackState
@@ -237,6 +237,8 @@ class ARCFTracker:
         self._state: FrameState | None = None
         #: the track state's references and state machine (per (re)initialisation)
         self._monitor = TrackMonitor(params.state)
+        #: the last frame's strength: PSR x peak over their recent trusted medians (NaN before)
+        self.strength = math.nan
         #: Paper formulation (or γ = 0, or the release's target made conjugate symmetric):
         #: filters are real in space, half spectra suffice.
         self._hermitian = (
@@ -332,6 +334,7 @@ class ARCFTracker:
         frob, spectral, target_f = self._aberrance(response)
         psr = peak_to_sidelobe(response, layout.psr_radius)
         verdict = self._monitor.observe(peak, psr, spectral)
+        self.strength = verdict.strength
         state_now, jumped = verdict.state, False
         # what the confidence reads: the frame's response, or the window the track jumped to
         read = (psr, verdict.ln_strength, verdict.ln_aberrance)
@@ -369,6 +372,26 @@ class ARCFTracker:
             state=state_now,
             reacquired=was_lost and state_now is TrackState.TRACKING,
         )
+
+    def steer(self, box: Box) -> None:
+        """Search around ``box`` on the next ``update``, at its size: a companion tracker's box
+        (the hybrid's network, :mod:`arcf.hybrid`) replaces the filter's own last position.
+        A lost track keeps the size of its last tracked frame, as it does on its own."""
+        state, layout = self.state, self.layout
+        x, y, w, h = (float(v) for v in box)
+        if self.params.sizing == "filter_max_area":
+            state.pos = (y + math.floor(h / 2), x + math.floor(w / 2))
+        else:
+            state.pos = (y + (h - 1) / 2, x + (w - 1) / 2)
+        if self._monitor.state is not TrackState.LOST and w > 0 and h > 0:
+            factor = math.sqrt(w * h / (layout.target_size[0] * layout.target_size[1]))
+            state.scale_factor = float(np.clip(factor, layout.min_scale, layout.max_scale))
+
+    def resume(self) -> None:
+        """A companion tracker vouches for the box (the hybrid's agreement rule): the track is
+        ``tracking`` again from the next frame and learns again, its references taken afresh
+        from the frames that follow (the target's look has changed since the old ones)."""
+        self._monitor.reset()
 
     def _keep_template(self, image: np.ndarray, strength: float) -> None:
         """Every ``TEMPLATE_EVERY`` strong tracking frames, the target's look joins the
@@ -748,14 +771,35 @@ def validate_box(box: Any, image_hw: tuple[int, int]) -> Box:
     return x, y, w, h
 
 
+class Tracker(Protocol):
+    """What every preset's tracker is: the field's ``init`` / ``update`` pair."""
+
+    def init(self, frame: np.ndarray, box: Box | Any) -> TrackResult: ...
+
+    def update(self, frame: np.ndarray) -> TrackResult: ...
+
+
 def create_tracker(
-    preset: str | TrackerParams = "arcf-hc",
+    preset: str | TrackerParams | SiameseParams | HybridParams = "arcf-hc",
     *,
     colornames_path: str | Path | None = None,
+    models_dir: str | Path | None = None,
     **overrides: Any,
-) -> ARCFTracker:
-    """A tracker for a preset (``"arcf-h"``, ``"arcf-hc"``, ``"bacf"``) with keyword overrides.
+) -> Tracker:
+    """A tracker for any preset: ARCF's (``"arcf-h"``, ``"arcf-hc"``, ``"bacf"``, with keyword
+    overrides), the Siamese ``"nanotrack"`` and ``"vittrack"`` (:mod:`arcf.siamese`) or the
+    hybrid ``"arcf-nano"`` (:mod:`arcf.hybrid`). ``models_dir`` names the networks' folder
+    (default :func:`arcf.models.models_root`).
 
     >>> tracker = create_tracker("arcf-h", aberrance="release")  # doctest: +SKIP
     """
-    return ARCFTracker(make_params(preset, **overrides), colornames_path=colornames_path)
+    params = preset_params(preset, **overrides)
+    if isinstance(params, SiameseParams):
+        from .siamese import SiameseTracker
+
+        return SiameseTracker(params, models_dir)
+    if isinstance(params, HybridParams):
+        from .hybrid import HybridTracker
+
+        return HybridTracker(params, models_dir, colornames_path)
+    return ARCFTracker(params, colornames_path=colornames_path)

@@ -1,4 +1,5 @@
-"""Speed benchmark: ARCF-HC, ARCF-H and BACF next to OpenCV's C++ CSRT on the same frames.
+"""Speed benchmark: every preset (ARCF-HC, ARCF-H, BACF, the Siamese NanoTrack and VitTrack, the
+hybrid arcf-nano) next to OpenCV's C++ CSRT on the same frames.
 
 Frames are decoded before timing: the figure is tracker init + update only, as the paper and the
 release measure it (FPS = frames / seconds). Each (tracker, sequence, thread mode) runs in its own
@@ -31,7 +32,7 @@ if TYPE_CHECKING:
     import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
-TRACKERS = ("csrt", "arcf-hc", "arcf-h", "bacf")
+TRACKERS = ("csrt", "arcf-hc", "arcf-h", "bacf", "nanotrack", "vittrack", "arcf-nano")
 PIN = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
        "NUMEXPR_NUM_THREADS": "1"}
 

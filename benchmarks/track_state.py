@@ -116,16 +116,21 @@ def run(preset: str, kind: str, name: str, overrides: dict[str, Any],
         groundtruth[start:start + simulated] = np.nan
     else:
         frames = (seq.read_frame(i) for i in range(len(seq.frames)))
-    tracker = arcf.create_tracker(preset, **overrides)
+    tracker: Any = arcf.create_tracker(preset, **overrides)
     features: list[tuple[float, ...]] = [(np.nan,) * len(FEATURES)]
-    confidence = tracker._monitor.confidence
+    # the ARCF filter whose confidence model reads the features (the hybrid's verifier); a
+    # Siamese tracker's confidence is its network's score: no features
+    monitored = getattr(tracker, "verifier", tracker)
+    monitor = getattr(monitored, "_monitor", None)
+    if monitor is not None and isinstance(monitored, arcf.ARCFTracker):
+        confidence = monitor.confidence
 
-    def recording(*args: Any) -> Any:  # the features each frame's confidence was read from
-        c, f = confidence(*args)
-        features.append(f)
-        return c, f
+        def recording(*args: Any) -> Any:  # the features each frame's confidence was read from
+            c, f = confidence(*args)
+            features.append(f)
+            return c, f
 
-    tracker._monitor.confidence = recording  # type: ignore[method-assign,assignment]
+        monitor.confidence = recording
     boxes, state, conf, reacq, secs = [], [], [], [], []
     for i, frame in enumerate(frames):
         t0 = time.perf_counter()
@@ -135,6 +140,8 @@ def run(preset: str, kind: str, name: str, overrides: dict[str, Any],
         state.append(STATE_CODES[r.state.value])
         conf.append(r.confidence)
         reacq.append(r.reacquired)
+        if len(features) < len(boxes):  # no confidence model read this frame
+            features.append((np.nan,) * len(FEATURES))
     return Run(preset, name + (f"+{simulated}" if simulated else ""), kind == "clip",
                np.array(boxes, float), groundtruth,
                np.array(state), np.array(conf), np.array(features, float), np.array(reacq),
@@ -287,8 +294,12 @@ def report(runs: list[Run], plain: list[Run], args: argparse.Namespace) -> None:
         base = [r for r in plain if r.preset == preset and not r.clip]
         p, a = (np.mean([score_sequence(r.boxes, r.groundtruth).precision20 for r in nine]),
                 np.mean([score_sequence(r.boxes, r.groundtruth).auc for r in nine]))
-        pb, ab = (np.mean([score_sequence(r.boxes, r.groundtruth).precision20 for r in base]),
-                  np.mean([score_sequence(r.boxes, r.groundtruth).auc for r in base]))
+        plain_scores = "–"
+        if base:
+            pb = float(np.mean([score_sequence(r.boxes, r.groundtruth).precision20
+                                for r in base]))
+            ab = float(np.mean([score_sequence(r.boxes, r.groundtruth).auc for r in base]))
+            plain_scores = f"{pb:.3f} / {ab:.3f}"
         _, ece = reliability(*_confidences(mine))
         ms = 1000 * np.median(np.concatenate([r.seconds[1:] for r in mine]))
         print(f"| `{preset}` | {sum(e.flagged for e in eps)}/{len(eps)} "
@@ -296,7 +307,7 @@ def report(runs: list[Run], plain: list[Run], args: argparse.Namespace) -> None:
               f"{sum(e.found for e in eps)}/{len(eps)} "
               f"({', '.join(e.sequence + ('' if e.found else ' ✗') for e in eps)}) | "
               f"{sum(e.false_claims for e in eps)} | {1000 * fa / max(good, 1):.1f} "
-              f"({fa}/{good}) | {p:.3f} / {a:.3f} ({pb:.3f} / {ab:.3f}) | {ece:.3f} | "
+              f"({fa}/{good}) | {p:.3f} / {a:.3f} ({plain_scores}) | {ece:.3f} | "
               f"{ms:.1f} |")
     print("\nReliability (all presets pooled; a frame counts as a hit when its box overlaps "
           "the target, IoU > 0):\n")
@@ -339,7 +350,12 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     overrides = dict(args.set or [])
     runs = all_runs(args.presets, overrides, args.jobs)
-    plain = all_runs(args.presets, {**overrides, "state.reacquire": False}, args.jobs)
+    # the paper's tracker beside each ARCF preset (the Siamese ones and the hybrid take no
+    # overrides: they have no plain version)
+    from arcf.presets import PRESETS as ARCF_PRESETS
+
+    plain = all_runs([p for p in args.presets if p in ARCF_PRESETS],
+                     {**overrides, "state.reacquire": False}, args.jobs)
     report(runs, plain, args)
     if args.simulated:
         simulated_report(all_runs(args.presets, overrides, args.jobs, args.simulated),

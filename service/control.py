@@ -24,8 +24,15 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, cast
 
-from arcf import ARCFError, make_params
-from arcf.presets import HOST_PARAMETERS, PRESETS, TUNABLE
+from arcf import ARCFError
+from arcf.presets import (
+    ALL_PRESETS,
+    HOST_PARAMETERS,
+    TUNABLE,
+    TrackerParams,
+    available_presets,
+    preset_params,
+)
 from arcf.schemas import (
     Ack,
     ErrorCode,
@@ -113,6 +120,13 @@ class ControlPlane:
                                                 daemon=True)
             self.pump_thread.start()
         self.version = version
+        #: preset -> why it cannot run here ("": it can): the Siamese networks' files are
+        #: checked once, at start (the workers load them from the same folder)
+        self.unavailable = {name: why for name, why in
+                            available_presets(getattr(settings, "models_dir", None)).items()
+                            if why}
+        for name, why in self.unavailable.items():
+            log.warning("preset %s is not available: %s", name, why)
         self.started = time.time()
         self.sessions: dict[str, SessionRecord] = {}
         #: what each worker last reported of its sessions (``status``)
@@ -437,9 +451,10 @@ class ControlPlane:
                 if t.kind in kinds and k not in HOST_PARAMETERS}
         return Presets(
             request_id=req.request_id,
-            presets=[PresetInfo(name=p.name, values={k: reduce(getattr, k.split("."), p)
-                                                     for k in wire})
-                     for p in PRESETS.values()],
+            presets=[PresetInfo(name=p.name, values=({k: reduce(getattr, k.split("."), p)
+                                                      for k in wire}
+                                                     if isinstance(p, TrackerParams) else {}))
+                     for p in ALL_PRESETS.values() if p.name not in self.unavailable],
             parameters=[ParameterInfo(name=k, kind=kinds[t.kind], minimum=t.low,
                                       maximum=t.high,
                                       choices=list(t.choices) if t.choices else None)
@@ -461,15 +476,19 @@ class ControlPlane:
         return stream if stream is not None else "request:" + request.request_id
 
     def _start(self, req: StartRequest) -> Ack:
-        if req.preset.lower().replace("_", "-") not in PRESETS:
+        preset = req.preset.lower().replace("_", "-")
+        if preset not in ALL_PRESETS:
             raise _Refused(ErrorCode.UNKNOWN_PRESET, f"unknown preset {req.preset!r}; choose "
-                           f"one of {', '.join(sorted(PRESETS))}")
+                           f"one of {', '.join(sorted(ALL_PRESETS))}")
+        if preset in self.unavailable:
+            raise _Refused(ErrorCode.UNKNOWN_PRESET, f"preset {preset!r} is not available on "
+                           f"this service: {self.unavailable[preset]}")
         host_only = sorted(set(req.overrides) & HOST_PARAMETERS)
         if host_only:
             raise _Refused(ErrorCode.INVALID_PARAMETER, f"{', '.join(host_only)} names a file "
                            "on the service's host; a request cannot set it")
         try:  # type and range of every override (arcf.presets.TUNABLE), before any worker
-            make_params(req.preset, **dict(req.overrides))
+            preset_params(req.preset, **dict(req.overrides))
         except ARCFError as exc:
             raise _Refused(ErrorCode.INVALID_PARAMETER, str(exc)) from exc
         sid = req.session_id or uuid.uuid4().hex

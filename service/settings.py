@@ -67,6 +67,11 @@ class ServiceSettings:
         "where a stream's video also arrives as CDR foxglove.CompressedVideo access units "
         "(BlueOS's MAVLink camera manager's convention); '{stream}' is the stream id; empty: "
         "off"))
+    models_dir: Path | None = field(default=None, metadata=_about(
+        "the Siamese networks' folder (nanotrack_v2/, vittrack/: arcf.models); default "
+        "$ARCF_MODELS, else ../shared/models beside a checkout. Checked at start: a missing "
+        "or altered file leaves those presets out, with a warning saying where to get it",
+        kind=Path))
     max_payload: int = field(default=8 * 1024 * 1024,
                              metadata=_about("largest accepted frame payload, bytes"))
     max_sessions_per_stream: int = field(default=16,

@@ -520,7 +520,8 @@ class Worker:
             # after every declaration (the stream's subscriber, the session's publisher with
             # Zenoh's writer-side filtering): acked means the first frame and result flow
             self._sync_with_router()
-            tracker = create_tracker(cmd.preset, **cmd.overrides)
+            tracker = create_tracker(cmd.preset, models_dir=self.settings.models_dir,
+                                     **cmd.overrides)
         except Exception:
             pub.undeclare()
             if not stream.sessions:

@@ -17,7 +17,7 @@ from typing import Any
 
 from ..data import data_root
 from ..errors import ARCFError
-from ..presets import PRESETS, make_params
+from ..presets import ALL_PRESETS, preset_params
 from .datasets import DatasetError, load_dataset
 from .metrics import DatasetScore
 from .results import ResultsError, read_fps, score_folder
@@ -33,7 +33,7 @@ def _sequence_filter(text: str | None) -> list[str] | None:
 def cmd_run(args: argparse.Namespace) -> int:
     overrides: dict[str, Any] = dict(args.set or [])
     try:
-        make_params(args.preset, **overrides)  # fail before any process starts
+        preset_params(args.preset, **overrides)  # fail before any process starts
     except ARCFError as exc:
         raise SystemExit(f"arcf eval run: {exc}") from exc
     spec = TrackerSpec(args.preset, overrides, args.label or "")
@@ -171,7 +171,7 @@ def add_parser(sub: argparse._SubParsersAction[Any], parse_override: Any) -> Non
     r = esub.add_parser("run", help="one-pass evaluation of a preset over datasets (resumable)",
                         description="One-pass evaluation: init on each sequence's first "
                         "ground-truth box, never re-initialise. A process per sequence.")
-    r.add_argument("--preset", default="arcf-hc", choices=sorted(PRESETS))
+    r.add_argument("--preset", default="arcf-hc", choices=sorted(ALL_PRESETS))
     r.add_argument("--set", action="append", type=parse_override, metavar="KEY=VALUE",
                    help="override a parameter, e.g. --set aberrance=release or "
                    "--set state.reacquire=true")
