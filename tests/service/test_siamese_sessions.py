@@ -5,7 +5,7 @@ of boat1."""
 
 from __future__ import annotations
 
-import time
+import threading
 import uuid
 from collections.abc import Iterator
 from pathlib import Path
@@ -53,25 +53,29 @@ def test_sessions_of_the_siamese_presets_and_the_hybrid_track_real_frames(
     jpegs, gt = boat
     stream = "siamese-" + uuid.uuid4().hex[:8]
     results: list[Result] = []
+    arrived = threading.Condition()
+
+    def on_result(r: Result) -> None:
+        with arrived:
+            results.append(r)
+            arrived.notify_all()
+
     with TrackingClient(connect=[service.endpoint], frame_congestion="block") as client:
         names = {p.name: p.values for p in client.presets().presets}
         assert {"nanotrack", "vittrack", "arcf-nano", "arcf-h"} <= set(names)
         assert names["nanotrack"] == {} and names["arcf-h"]
-        sub = client.results(stream, callback=results.append)
+        sub = client.results(stream, callback=on_result)
         box = tuple(float(v) for v in gt[0])
         sessions = {preset: client.start(stream, box, preset=preset).session_id
                     for preset in ("nanotrack", "vittrack", "arcf-nano")}
         for k, jpeg in enumerate(jpegs):
             client.publish_frame(stream, data=jpeg, seq=k)
-            deadline = time.monotonic() + 60
-            while time.monotonic() < deadline:
-                done = {r.session_id for r in list(results)
-                        if r.frame_seq == k and r.track_state is not None}
-                if done >= set(sessions.values()):
-                    break
-                time.sleep(0.01)
-            else:
-                pytest.fail(f"frame {k} not answered by every session")
+            with arrived:
+                answered = arrived.wait_for(lambda k=k: {
+                    r.session_id for r in results
+                    if r.frame_seq == k and r.track_state is not None} >= set(sessions.values()),
+                    timeout=60)
+            assert answered, f"frame {k} not answered by every session"
         for sid in sessions.values():
             client.stop(sid)
         sub.close()
