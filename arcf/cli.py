@@ -152,6 +152,24 @@ def cmd_track(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_models(args: argparse.Namespace) -> int:
+    """Which networks the folder holds, checked file by file; 1 if a file is altered or a
+    ``--require``d network cannot run."""
+    from .models import NETWORKS, ModelNotFoundError, model_paths, models_root
+
+    root = Path(args.dir).expanduser() if args.dir else models_root()
+    print(f"models folder: {root}")
+    failed = False
+    for network in NETWORKS:
+        try:
+            model_paths(network, root)
+            print(f"  {network}: ok")
+        except ModelNotFoundError as exc:
+            failed |= exc.altered or network in args.require
+            print(f"  {network}: {'ALTERED' if exc.altered else 'missing'}: {exc}")
+    return 1 if failed else 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="arcf", description=__doc__.splitlines()[0])
     parser.add_argument("--version", action="version", version=f"arcf {__version__}")
@@ -181,6 +199,17 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--frames-limit", type=int, default=0, help="track only the first N frames")
     t.add_argument("--colornames", help="path of cn_norm_32768x10.npy (else $ARCF_COLORNAMES)")
     t.set_defaults(func=cmd_track)
+
+    m = sub.add_parser(
+        "models", help="check the Siamese networks' files (size and SHA-256)",
+        description="List the networks the Siamese presets need and whether the models folder "
+        "holds the published files. Exit status 1 if a file is altered or a --require'd network "
+        "is missing.")
+    m.add_argument("--dir", help="the models folder (default: $ARCF_MODELS, else "
+                   "../shared/models beside the data)")
+    m.add_argument("--require", action="append", default=[], metavar="NETWORK",
+                   help="fail unless this network (nanotrack, vittrack) can run")
+    m.set_defaults(func=cmd_models)
 
     from .eval.cli import add_parser as add_eval_parser
 

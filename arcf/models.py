@@ -29,7 +29,14 @@ MODELS_ENV = "ARCF_MODELS"
 
 
 class ModelNotFoundError(FileNotFoundError):
-    """A network file is missing, or is not the published file (size or SHA-256 differ)."""
+    """A network file is missing, or is not the published file (size or SHA-256 differ).
+
+    ``altered`` tells the two apart: a missing file is a folder not filled yet, an altered one
+    is a wrong or damaged download."""
+
+    def __init__(self, message: str, altered: bool = False) -> None:
+        super().__init__(message)
+        self.altered = altered
 
 
 @dataclass(frozen=True)
@@ -112,7 +119,8 @@ def model_paths(network: str, root: str | os.PathLike[str] | None = None) -> tup
         if key not in _checked:
             if stat.st_size != m.size or _sha256(path) != m.sha256:
                 raise ModelNotFoundError(f"{network}: {path} is not the published file (size "
-                                         f"or SHA-256 differ); " + _where_to_get(network, base))
+                                         f"or SHA-256 differ); " + _where_to_get(network, base),
+                                         altered=True)
             _checked.add(key)
         paths.append(path)
     return tuple(paths)

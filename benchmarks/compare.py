@@ -27,12 +27,11 @@ import time
 from pathlib import Path
 from typing import Any
 
-ROOT = Path(__file__).resolve().parent.parent
+from speed import PIN, ROOT, _read, add_csrt_arguments, csrt_python  # beside this script
+
 TRACKERS = ("arcf-hc", "arcf-h", "bacf", "nanotrack", "vittrack", "arcf-nano", "csrt")
 DATASETS = ("uav123_10fps", "dtb70", "uavdt")
 CLIPS = ("car14", "person12_2", "group2_1")
-PIN = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
-       "NUMEXPR_NUM_THREADS": "1"}
 STATE_CODES = {"tracking": 0, "coasting": 1, "lost": 2}
 
 
@@ -44,9 +43,7 @@ def worker(job_file: str, tracker_name: str) -> None:
 
     cv2.setNumThreads(1)
     job = json.loads(Path(job_file).read_text())
-    frames = [cv2.imread(p, cv2.IMREAD_COLOR) for p in job["frames"]]
-    if any(f is None for f in frames):
-        raise SystemExit("a frame did not decode")
+    frames = [_read(p) for p in job["frames"]]
     x, y, w, h = job["box"]
     boxes, states, seconds = [[x, y, w, h]], [0], []
     if tracker_name == "csrt":  # opencv-contrib only; OpenCV's rectangles are 0-based
@@ -146,30 +143,20 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--worker", nargs=2, metavar=("JOB", "TRACKER"), help=argparse.SUPPRESS)
     ap.add_argument("--trackers", default=",".join(TRACKERS))
-    ap.add_argument("--csrt-python", type=Path, default=ROOT / ".venv-csrt" / "bin" / "python")
-    ap.add_argument("--setup-csrt", action="store_true",
-                    help="create .venv-csrt with opencv-contrib-python-headless if missing")
+    add_csrt_arguments(ap)
     ap.add_argument("--data", type=Path, default=None)
     args = ap.parse_args(argv)
     if args.worker:
         worker(*args.worker)
         return 0
     sys.path.insert(0, str(ROOT))
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
     import cv2
 
     from arcf.data import data_root
     from arcf.loadtools.system import cpu_model
 
     trackers = [t for t in args.trackers.split(",") if t]
-    if "csrt" in trackers:
-        if args.setup_csrt:
-            from speed import setup_csrt
-
-            args.csrt_python = setup_csrt(ROOT / ".venv-csrt")
-        if not args.csrt_python.exists():
-            ap.error(f"no CSRT interpreter at {args.csrt_python}; pass --setup-csrt or "
-                     "--csrt-python PATH (a venv with opencv-contrib-python-headless)")
+    csrt = csrt_python(ap, args) if "csrt" in trackers else ""
     seqs = _sequences(args.data or data_root())
     runs: dict[tuple[str, str], dict[str, Any]] = {}
     with tempfile.TemporaryDirectory() as tmp:
@@ -178,7 +165,7 @@ def main(argv: list[str] | None = None) -> int:
             job.write_text(json.dumps({"frames": [str(p) for p in seq.frames],
                                        "box": list(seq.init_box)}))
             for t in trackers:
-                py = str(args.csrt_python) if t == "csrt" else sys.executable
+                py = csrt if t == "csrt" else sys.executable
                 runs[(t, name)] = r = _run(py, job, t)
                 print(f"# {name} {t}: {len(r['seconds']) / sum(r['seconds']):.0f} FPS",
                       file=sys.stderr)

@@ -117,6 +117,22 @@ def setup_csrt(venv: Path) -> Path:
     return py
 
 
+def add_csrt_arguments(ap: argparse.ArgumentParser) -> None:
+    """The options that name (or create) the interpreter CSRT runs in."""
+    ap.add_argument("--csrt-python", type=Path, default=ROOT / ".venv-csrt" / "bin" / "python")
+    ap.add_argument("--setup-csrt", action="store_true",
+                    help="create .venv-csrt with opencv-contrib-python-headless if missing")
+
+
+def csrt_python(ap: argparse.ArgumentParser, args: argparse.Namespace) -> str:
+    """The interpreter for CSRT (opencv-contrib), created if asked; a usage error if absent."""
+    path: Path = setup_csrt(ROOT / ".venv-csrt") if args.setup_csrt else args.csrt_python
+    if not path.exists():
+        ap.error(f"no CSRT interpreter at {path}; pass --setup-csrt or "
+                 "--csrt-python PATH (a venv with opencv-contrib-python-headless)")
+    return str(path)
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--worker", nargs=3, metavar=("JOB", "TRACKER", "THREADS"),
@@ -127,9 +143,7 @@ def main() -> int:
     ap.add_argument("--threads", default="1,default", help="'1', 'default' or both")
     ap.add_argument("--sequences", default="", help="comma-separated names (default: all local)")
     ap.add_argument("--trackers", default=",".join(TRACKERS))
-    ap.add_argument("--csrt-python", type=Path, default=ROOT / ".venv-csrt" / "bin" / "python")
-    ap.add_argument("--setup-csrt", action="store_true",
-                    help="create .venv-csrt with opencv-contrib-python-headless if missing")
+    add_csrt_arguments(ap)
     ap.add_argument("--data", type=Path, default=None)
     args = ap.parse_args()
     if args.worker:
@@ -156,12 +170,7 @@ def main() -> int:
         trackers, modes = [t for t in trackers if t != "csrt"], ["1"]
     else:
         modes = [m for m in args.threads.split(",") if m]
-    if "csrt" in trackers:
-        if args.setup_csrt:
-            args.csrt_python = setup_csrt(ROOT / ".venv-csrt")
-        if not args.csrt_python.exists():
-            ap.error(f"no CSRT interpreter at {args.csrt_python}; pass --setup-csrt or "
-                     "--csrt-python PATH (a venv with opencv-contrib-python-headless)")
+    csrt = csrt_python(ap, args) if "csrt" in trackers else ""
 
     fps: dict[tuple[str, str, str], float] = {}
     stage_runs: dict[str, list[tuple[int, dict]]] = {t: [] for t in trackers}
@@ -184,7 +193,7 @@ def main() -> int:
                         env["ARCF_PROFILE"] = "1"
                     if args.stages:
                         env["ARCF_STAGES"] = "1"
-                    py = str(args.csrt_python) if t == "csrt" else sys.executable
+                    py = csrt if t == "csrt" else sys.executable
                     out = subprocess.run(
                         [py, str(Path(__file__).resolve()), "--worker", str(job), t, mode],
                         env=env, capture_output=True, text=True, cwd=ROOT,

@@ -10,10 +10,14 @@ Two inputs replace the network during ``docker build``:
   the image's Python and CPU whatever the host runs, so that ``pip install --no-index`` inside
   the build needs no index.
 
+It also fills ``deploy/models/`` with the Siamese presets' network files (``nanotrack_v2/``,
+``vittrack/``) from the models folder (``$ARCF_MODELS``, else ``../shared/models``), so that the
+image carries them; the image's build checks each file's size and SHA-256 (``arcf models``).
+
 Run on a machine that reaches PyPI and a Debian mirror (as root, for debootstrap); carry the
 wheelhouse and ``docker save arcf-base:bookworm`` to the site if it is elsewhere. Then::
 
-    python3 deploy/offline.py                    # base image (if missing) + wheelhouse
+    python3 deploy/offline.py                    # base image (if missing), wheelhouse, models
     docker-compose -f deploy/compose.yaml -f deploy/compose.local.yaml -p arcf up -d --build
 
 Each step is skipped when its result is already there (``--force`` redoes it).
@@ -34,6 +38,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 WHEELHOUSE = ROOT / "deploy" / "wheelhouse"
+MODELS = ROOT / "deploy" / "models"
 BASE_TAG = "arcf-base:bookworm"
 #: Debian bookworm's Python, which the Dockerfile's default base (python:3.11-slim) matches.
 PYTHON_VERSION = "3.11"
@@ -84,6 +89,21 @@ def build_wheelhouse(dest: Path, machine: str, force: bool) -> None:
         f"{time.monotonic() - t0:.0f} s")
 
 
+def copy_models(source: Path, dest: Path) -> None:
+    """Every network folder's ONNX files from ``source`` into ``dest`` (checked in the build)."""
+    files = sorted(source.glob("*/*.onnx")) if source.is_dir() else []
+    if not files:
+        log(f"no network files under {source}: the image will carry no Siamese models")
+        return
+    for src in files:
+        target = dest / src.parent.name / src.name
+        if target.is_file() and target.stat().st_size == src.stat().st_size:
+            continue
+        target.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(src, target)
+    log(f"models: {len(files)} files from {source} in {dest}")
+
+
 def image_exists(tag: str) -> bool:
     return subprocess.run(["docker", "image", "inspect", tag], capture_output=True).returncode == 0
 
@@ -127,21 +147,28 @@ def build_base(tag: str, mirror: str, suite: str, force: bool) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("steps", nargs="*", metavar="{base,wheels}",
-                    help="what to prepare (default: both)")
+    ap.add_argument("steps", nargs="*", metavar="{base,wheels,models}",
+                    help="what to prepare (default: all three)")
     ap.add_argument("--base-tag", default=BASE_TAG)
     ap.add_argument("--mirror", default="http://deb.debian.org/debian")
     ap.add_argument("--suite", default="bookworm")
     ap.add_argument("--wheelhouse", type=Path, default=WHEELHOUSE)
+    ap.add_argument("--models-from", type=Path, default=None,
+                    help="the models folder to copy (default: $ARCF_MODELS, else ../shared/models)")
     ap.add_argument("--machine", default=platform.machine(), choices=sorted(PLATFORMS),
                     help="CPU of the image (default: this machine's)")
     ap.add_argument("--force", action="store_true", help="redo steps already done")
     args = ap.parse_args(argv)
-    steps = args.steps or ["base", "wheels"]
-    if unknown := set(steps) - {"base", "wheels"}:
+    steps = args.steps or ["base", "wheels", "models"]
+    if unknown := set(steps) - {"base", "wheels", "models"}:
         ap.error(f"unknown step(s): {', '.join(sorted(unknown))}")
     if "wheels" in steps:
         build_wheelhouse(args.wheelhouse, args.machine, args.force)
+    if "models" in steps:
+        source = args.models_from or Path(os.environ.get(
+            "ARCF_MODELS", Path(os.environ.get("ARCF_DATA", ROOT.parent / "shared" / "data"))
+            .parent / "models"))
+        copy_models(source, MODELS)
     if "base" in steps:
         build_base(args.base_tag, args.mirror, args.suite, args.force)
     return 0

@@ -3,8 +3,12 @@ sleeps."""
 
 from __future__ import annotations
 
+import threading
 import time
-from typing import Any
+from collections.abc import Callable
+from typing import Any, Generic, TypeVar
+
+T = TypeVar("T")
 
 
 def wait_until(condition: Any, timeout: float = 10.0, what: str = "condition") -> None:
@@ -14,3 +18,33 @@ def wait_until(condition: Any, timeout: float = 10.0, what: str = "condition") -
         if time.monotonic() > deadline:
             raise AssertionError(f"not within {timeout} s: {what}")
         time.sleep(0.02)
+
+
+class Arrivals(Generic[T]):
+    """What a callback receives on another thread (a subscription's messages), in arrival
+    order, with a wait that wakes on each arrival instead of polling.
+
+    Pass the instance itself as the callback; ``describe`` says how an item is shown when a
+    wait runs out.
+    """
+
+    def __init__(self, describe: Callable[[T], Any] = repr) -> None:
+        self.got: list[T] = []
+        self._describe = describe
+        self._cond = threading.Condition()
+
+    def __call__(self, item: T) -> None:
+        with self._cond:
+            self.got.append(item)
+            self._cond.notify_all()
+
+    def wait(self, predicate: Callable[[list[T]], object], what: str = "condition",
+             timeout: float = 30.0) -> list[T]:
+        """A copy of everything received, once ``predicate`` holds for it; AssertionError
+        with what did arrive after ``timeout`` seconds (a generous deadline by default, not a
+        measurement: a loaded 2-core machine must pass)."""
+        with self._cond:
+            if not self._cond.wait_for(lambda: predicate(self.got), timeout=timeout):
+                raise AssertionError(f"no {what} within {timeout} s: "
+                                     f"{[self._describe(x) for x in self.got[-40:]]}")
+            return list(self.got)

@@ -171,6 +171,21 @@ def test_host_client_tracks_a_real_sequence_through_the_router(stack: Stack) -> 
     assert all(got[i].status.value == "tracking" for i in range(1, len(seq)))
 
 
+def test_the_image_carries_the_siamese_networks(stack: Stack) -> None:
+    """deploy/offline.py copied ../shared/models into the build, which checked each file: the
+    instances offer the Siamese presets (an instance without them would leave them out)."""
+    from arcf.models import NETWORKS, ModelNotFoundError, model_paths
+
+    try:
+        for network in NETWORKS:
+            model_paths(network)
+    except ModelNotFoundError as exc:
+        pytest.skip(f"no network files beside the data to carry: {exc}")
+    with TrackingClient(connect=[f"tcp/127.0.0.1:{stack.router_port}"]) as client:
+        offered = {p.name for p in client.presets().presets}
+    assert {"nanotrack", "vittrack", "arcf-nano"} <= offered
+
+
 def _explain(holes: list[int], got: dict, stack: Stack) -> str:
     """Where a frame without a result was lost: the next result's ``dropped`` counts a frame
     the service never received (lost on the way in) or shed; none means the frame was

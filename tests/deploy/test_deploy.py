@@ -156,8 +156,10 @@ def test_router_config_runs_a_router_the_service_reaches() -> None:
 
 # ---------------------------------------------------------------------------------- Dockerfile
 def dockerfile_stages() -> list[dict[str, Any]]:
-    """The Dockerfile as stages of (instruction, argument) pairs, continuations joined."""
+    """The Dockerfile as stages of (instruction, argument) pairs, continuations joined (comment
+    lines dropped first, as Docker does, also inside a continued instruction)."""
     text = (DEPLOY / "Dockerfile").read_text()
+    text = re.sub(r"^\s*#.*\n", "", text, flags=re.M)
     text = re.sub(r"\\\n\s*", " ", text)
     stages: list[dict[str, Any]] = []
     for line in text.splitlines():
@@ -190,7 +192,39 @@ def test_dockerfile_is_multistage_slim_nonroot_with_healthcheck() -> None:
     assert "HEALTHCHECK" in ops and "arcf-healthcheck" in ops["HEALTHCHECK"]
     assert json.loads(ops["ENTRYPOINT"]) == ["arcf-service"]
     copies = [arg for op, arg in runtime["steps"] if op == "COPY"]
-    assert copies and all("--from=" in c for c in copies)  # only the built virtualenv
+    # only what the build stage made: the virtualenv and the checked network files
+    assert copies and all("--from=build" in c for c in copies)
+    assert "ARCF_MODELS=/opt/arcf-models" in ops["ENV"].split()
+    assert any(c.split()[-1] == "/opt/arcf-models" for c in copies)
+    assert "arcf models --dir /opt/arcf-models" in install  # the build checks each file
+
+
+def _load_offline() -> Any:
+    """deploy/offline.py as a module (a script, not part of the package)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("offline", DEPLOY / "offline.py")
+    assert spec and spec.loader
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_offline_fills_the_models_folder_the_image_copies(tmp_path: Path) -> None:
+    """deploy/offline.py's models step copies the network folders as published (the build
+    context lets deploy/models through, and git keeps it empty)."""
+    src = tmp_path / "models"
+    (src / "vittrack").mkdir(parents=True)
+    (src / "vittrack" / "net.onnx").write_bytes(b"onnx")
+    (src / "README.md").write_text("not copied")
+    dest = tmp_path / "dest"
+    offline = _load_offline()
+    offline.copy_models(src, dest)
+    assert sorted(p.relative_to(dest).as_posix() for p in dest.rglob("*") if p.is_file()) == [
+        "vittrack/net.onnx"]
+    ignore = (DEPLOY.parent / ".dockerignore").read_text().split()
+    assert ignore.index("!deploy/models") > ignore.index("deploy/*")
+    assert (DEPLOY / "models" / ".gitignore").read_text().split()[-2:] == ["*", "!.gitignore"]
 
 
 def test_local_override_builds_everything_and_keeps_the_stack() -> None:

@@ -5,7 +5,6 @@ of boat1."""
 
 from __future__ import annotations
 
-import threading
 import uuid
 from collections.abc import Iterator
 from pathlib import Path
@@ -18,6 +17,7 @@ pytest.importorskip("zenoh")
 from arcf.eval import load_dataset
 from arcf.eval.metrics import overlaps
 from arcf.loadtools.procs import ServiceProcess
+from arcf.loadtools.waiting import Arrivals
 from arcf.models import models_root
 from arcf.schemas import Result
 from arcf.service.client import ServiceError, TrackingClient
@@ -52,35 +52,26 @@ def test_sessions_of_the_siamese_presets_and_the_hybrid_track_real_frames(
     boxes on the boat, the states and confidences reported."""
     jpegs, gt = boat
     stream = "siamese-" + uuid.uuid4().hex[:8]
-    results: list[Result] = []
-    arrived = threading.Condition()
-
-    def on_result(r: Result) -> None:
-        with arrived:
-            results.append(r)
-            arrived.notify_all()
-
+    results: Arrivals[Result] = Arrivals(lambda r: (r.session_id, r.frame_seq))
     with TrackingClient(connect=[service.endpoint], frame_congestion="block") as client:
         names = {p.name: p.values for p in client.presets().presets}
         assert {"nanotrack", "vittrack", "arcf-nano", "arcf-h"} <= set(names)
         assert names["nanotrack"] == {} and names["arcf-h"]
-        sub = client.results(stream, callback=on_result)
+        sub = client.results(stream, callback=results)
         box = tuple(float(v) for v in gt[0])
         sessions = {preset: client.start(stream, box, preset=preset).session_id
                     for preset in ("nanotrack", "vittrack", "arcf-nano")}
         for k, jpeg in enumerate(jpegs):
             client.publish_frame(stream, data=jpeg, seq=k)
-            with arrived:
-                answered = arrived.wait_for(lambda k=k: {
-                    r.session_id for r in results
-                    if r.frame_seq == k and r.track_state is not None} >= set(sessions.values()),
-                    timeout=60)
-            assert answered, f"frame {k} not answered by every session"
+            results.wait(lambda got, k=k: {
+                r.session_id for r in got
+                if r.frame_seq == k and r.track_state is not None} >= set(sessions.values()),
+                f"frame {k} answered by every session", timeout=60)
         for sid in sessions.values():
             client.stop(sid)
         sub.close()
     for preset, sid in sessions.items():
-        mine = [r for r in results if r.session_id == sid and r.track_state is not None]
+        mine = [r for r in results.got if r.session_id == sid and r.track_state is not None]
         assert [r.frame_seq for r in mine] == list(range(FRAMES)), preset
         iou = overlaps(np.array([r.box for r in mine]), gt)
         assert np.median(iou) > 0.6, (preset, iou)

@@ -10,8 +10,7 @@ is the ``stale_after_s`` setting (0.8 s by default), measured by
 from __future__ import annotations
 
 import math
-import threading
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from typing import Any
 
 import pytest
@@ -21,14 +20,12 @@ pytest.importorskip("zenoh")
 from arcf.data import data_root
 from arcf.loadtools.driver import Clip
 from arcf.loadtools.procs import ServiceProcess
+from arcf.loadtools.waiting import Arrivals
 from arcf.service.client import TrackingClient
 
 pytestmark = [pytest.mark.integration,
               pytest.mark.skipif(not (data_root() / "uav123_10fps").is_dir(),
                                  reason="needs ../shared/data")]
-
-#: generous: a deadline, not a measurement (a loaded 2-core machine must pass)
-DEADLINE_S = 30.0
 
 
 @pytest.fixture(scope="module")
@@ -45,25 +42,12 @@ def clip(wakeboard7: Any) -> Clip:
     return Clip.of(wakeboard7, limit=20)
 
 
-class Results:
+class Results(Arrivals[Any]):
     """Every result of a stream, in arrival order, with a wait for a condition on them."""
 
     def __init__(self, client: TrackingClient, stream: str) -> None:
-        self.got: list[Any] = []
-        self._cond = threading.Condition()
-        self._sub = client.results(stream, callback=self._on_result)
-
-    def _on_result(self, result: Any) -> None:
-        with self._cond:
-            self.got.append(result)
-            self._cond.notify_all()
-
-    def wait(self, predicate: Callable[[list[Any]], bool], what: str) -> list[Any]:
-        with self._cond:
-            if not self._cond.wait_for(lambda: predicate(self.got), timeout=DEADLINE_S):
-                raise AssertionError(f"no {what} within {DEADLINE_S} s: "
-                                     f"{[(r.frame_seq, r.status.value) for r in self.got]}")
-            return list(self.got)
+        super().__init__(describe=lambda r: (r.frame_seq, r.status.value))
+        self._sub = client.results(stream, callback=self)
 
     def close(self) -> None:
         self._sub.close()
