@@ -16,6 +16,8 @@ from typing import Any
 
 from arcf.schemas import ErrorCode
 
+from .stages import StageClock
+
 
 class TokenBucket:
     """``rate`` frames per second, bursts of one second's worth: a station flooding its stream
@@ -136,7 +138,8 @@ class Inbox:
     to the decoder, which then waits for a keyframe instead of decoding from a broken chain."""
 
     def __init__(self, key: str, video_key: str | None, image_queue: int, video_queue: int,
-                 rate: float, max_payload: int, wake: threading.Event, metrics: Any) -> None:
+                 rate: float, max_payload: int, wake: threading.Event, metrics: Any,
+                 clock: StageClock | None = None) -> None:
         self.key = key
         self.video_key = video_key
         #: bounded by ``limit`` and ``max_bytes``, trimmed on every append (no ``maxlen``: its
@@ -157,6 +160,8 @@ class Inbox:
         self.max_payload = max_payload
         self.wake = wake
         self.metrics = metrics
+        #: the worker's CPU accounting: what a sample costs on Zenoh's thread is "receive"
+        self.clock = clock
         #: frames dropped from the queue's old end so far (the stream lagged behind)
         self.trimmed = 0
         #: frames refused here so far, by code (the loop reports them to the stream)
@@ -165,19 +170,25 @@ class Inbox:
 
     def __call__(self, sample: Any) -> None:
         """A sample on the stream's frames key (a ``frame`` message)."""
+        c0 = time.thread_time()
         if str(sample.key_expr) != self.key:
             self.metrics.ERRORS.labels(kind=ErrorCode.INVALID_KEY.value).inc()
-            return
-        self._take(sample, "frame", None)
+        else:
+            self._take(sample, "frame", None)
+        if self.clock is not None:
+            self.clock.since("receive", c0)
 
     def video(self, sample: Any) -> None:
         """A sample on the stream's CompressedVideo key (CDR)."""
+        c0 = time.thread_time()
         if str(sample.key_expr) != self.video_key:
             self.metrics.ERRORS.labels(kind=ErrorCode.INVALID_KEY.value).inc()
-            return
-        self.limit = self.video_queue
-        seq, self.video_seq = self.video_seq, self.video_seq + 1
-        self._take(sample, "compressed_video", seq)
+        else:
+            self.limit = self.video_queue
+            seq, self.video_seq = self.video_seq, self.video_seq + 1
+            self._take(sample, "compressed_video", seq)
+        if self.clock is not None:
+            self.clock.since("receive", c0)
 
     def _take(self, sample: Any, source: str, seq: int | None) -> None:
         self.metrics.FRAMES_RECEIVED.inc()

@@ -44,6 +44,12 @@ STALE = Counter(
     "per episode; the notice repeated while it lasts is not counted)",
 )
 ERRORS = Counter("arcf_errors_total", "Errors by kind", ["kind"])
+STAGE_CPU = Counter(
+    "arcf_stage_cpu_seconds_total",
+    "Workers' CPU seconds by stage of a frame's path (receive, parse, decode, convert, track, "
+    "publish, metrics), added once a second",
+    ["stage"],
+)
 CONTROL = Counter("arcf_control_requests_total", "Control requests by type and outcome",
                   ["type", "outcome"])
 TAKEOVERS = Counter("arcf_sessions_taken_over_total",

@@ -50,6 +50,7 @@ from .decoding import decode_image
 from .foxglove import parse_compressed_video
 from .intake import Inbox, Numbering, Verdict
 from .settings import LOG_FORMAT
+from .stages import StageClock
 from .video import CODECS, Decoded, Outcome, StreamDecoder
 
 log = logging.getLogger(__name__)
@@ -204,6 +205,8 @@ class Worker:
         self.streams: dict[str, _Stream] = {}
         self.sessions: dict[str, _Session] = {}
         self.busy = metrics.BUSY.labels(worker=str(index))
+        #: CPU per stage of a frame's path (arcf_stage_cpu_seconds_total)
+        self.clock = StageClock(metrics.STAGE_CPU)
         self.memory = metrics.MEMORY.labels(process=f"worker-{index}")
         self.wake = threading.Event()
         self.pending: deque[Command] = deque()
@@ -503,7 +506,7 @@ class Worker:
             s = self.settings
             video_key = s.video_key.replace("{stream}", stream_id) if s.video_key else None
             inbox = Inbox(self.keys.frames(stream_id), video_key, s.frame_queue, s.video_queue,
-                           s.max_stream_fps, s.max_payload, self.wake, self.metrics)
+                           s.max_stream_fps, s.max_payload, self.wake, self.metrics, self.clock)
             sub = self.session.declare_subscriber(self.keys.frames(stream_id), inbox)
             errors = self.session.declare_publisher(
                 self.keys.errors(stream_id), congestion_control=self.zenoh.CongestionControl.DROP)
@@ -655,7 +658,8 @@ class Worker:
         None (refused before reaching them, or a unit whose picture is not out yet)."""
         if source == "compressed_video":
             return self._ingest_compressed_video(stream, payload, received_ns, unit_seq or 0)
-        m = self.metrics
+        m, clock = self.metrics, self.clock
+        c0 = time.thread_time()
         try:
             frame = decode(payload, expected=Frame, max_payload=self.settings.max_payload)
         except SchemaError as exc:
@@ -667,16 +671,19 @@ class Worker:
             return None
         if not self._admit(stream, frame.seq):
             return None
+        clock.since("parse", c0)
         if frame.encoding.is_video:
             stream.inbox.limit = stream.inbox.video_queue
             return self._decode_unit(stream, frame.seq, frame.capture_ts_ns, received_ns,
                                      CODECS[frame.encoding.value], frame.payload)
         stream.decoder, stream.inbox.limit = None, stream.inbox.image_queue
         stream.unit_times.clear()
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.thread_time()
         image, problem = decode_image(frame, self.settings.max_pixels)
         decode_s = time.perf_counter() - t0
+        c0 = clock.since("decode", c0)
         m.DECODE.observe(decode_s)
+        clock.since("metrics", c0)
         if image is not None:
             return _Picture(frame.seq, frame.capture_ts_ns, received_ns, decode_s, image)
         code, text = problem or (ErrorCode.DECODE_ERROR, f"cannot decode {frame.encoding} frame")
@@ -687,6 +694,7 @@ class Worker:
                                  seq: int) -> _Picture | None:
         """A CDR foxglove.CompressedVideo from the stream's ``video_key``: numbered on arrival
         (``Inbox.video``), stamped with its own ``timestamp``."""
+        c0 = time.thread_time()
         try:
             unit = parse_compressed_video(payload)
         except ValueError as exc:
@@ -699,6 +707,7 @@ class Worker:
             return None
         if not self._admit(stream, seq):
             return None
+        self.clock.since("parse", c0)
         return self._decode_unit(stream, seq, unit.timestamp_ns, received_ns, codec, unit.data)
 
     def _admit(self, stream: _Stream, seq: int) -> bool:
@@ -744,10 +753,12 @@ class Worker:
         times[seq] = (capture_ts_ns, received_ns)
         while len(times) > 2 * self.settings.video_queue:
             del times[next(iter(times))]
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.thread_time()
         out = stream.decoder.decode(seq, data)
         decode_s = time.perf_counter() - t0
+        c0 = self.clock.since("decode", c0)
         self.metrics.DECODE.observe(decode_s)
+        self.clock.since("metrics", c0)
         if out.outcome is Outcome.FRAME:
             if out.resynced is not None:  # a gap that ended at this keyframe
                 self.metrics.VIDEO_RESYNCS.labels(cause=out.resynced).inc()
@@ -766,10 +777,12 @@ class Worker:
 
     def _track(self, stream: _Stream, picture: _Picture) -> None:
         """Every session of the stream on one picture (or told why there is none)."""
-        m = self.metrics
-        c0 = time.thread_time()
+        m, clock = self.metrics, self.clock
+        c0, converts = time.thread_time(), picture.image is None and picture.video is not None
         image = picture.pixels()
         stream.window_decode_s += time.thread_time() - c0
+        if converts:
+            clock.since("convert", c0)
         decode_s, received_ns = picture.decode_s, picture.received_ns
         code, text = picture.code, picture.text
         if image is not None:
@@ -807,7 +820,10 @@ class Worker:
                 continue  # waiting for the frame its box was drawn on
             track_s = time.perf_counter() - t1
             cpu_s = time.thread_time() - c1
+            clock.add("track", cpu_s)
+            c1 += cpu_s
             m.TRACK.observe(track_s)
+            c1 = clock.since("metrics", c1)
             s.window_cpu_s += cpu_s
             s.last_seq = picture.seq
             s.frames += 1
@@ -829,9 +845,11 @@ class Worker:
                 track_s=track_s, published_ts_ns=published,
             )
             s.publisher.put(encode(result))
+            c1 = clock.since("publish", c1)
             m.RESULTS.inc()
             if picture.capture_ts_ns > 0:
                 m.END_TO_END.observe(max(published - picture.capture_ts_ns, 0) / 1e9)
+            clock.since("metrics", c1)
             s.last_activity, s.last_result_ns = time.monotonic(), published
             s.fresh_at, s.stale_noticed = s.last_activity, None  # no longer stale
             if unusable_box:  # no tracker to run: the session ends, saying so
@@ -906,6 +924,7 @@ class Worker:
                         self._release_memory(rss)
                     self._shed(busy_s / (now - t_window), now - t_window)
                     busy_s, t_window = 0.0, now
+                    self.clock.flush()
                     self._housekeeping()
         if self.stop.is_set():
             self._drain()

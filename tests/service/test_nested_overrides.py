@@ -170,6 +170,9 @@ def test_the_presets_reply_values_match_the_presets(service: ServiceProcess) -> 
     with TrackingClient(connect=[service.endpoint]) as client:
         info = client.presets()
     for p in info.presets:
+        if p.name not in PRESETS:  # a Siamese preset or the hybrid: no overrides at all
+            assert p.values == {}
+            continue
         preset = PRESETS[p.name]
         assert p.values["state.reacquire"] is preset.state.reacquire
         assert p.values["state.probes"] == preset.state.probes

@@ -28,7 +28,9 @@ from arcf.loadtools.waiting import wait_until
 from arcf.schemas import KeySpace
 from arcf.service.client import ServiceError, TrackingClient
 from arcf.service.decoding import decode_compressed
+from arcf.service.scrape import by_label, fetch
 from arcf.service.settings import ServiceSettings
+from arcf.service.stages import STAGES
 
 pytestmark = [pytest.mark.integration,
               pytest.mark.skipif(not (data_root() / "uav123_10fps").is_dir(),
@@ -232,11 +234,30 @@ def test_metrics_count_what_was_sent(service, frames) -> None:
     assert service.metric("arcf_end_to_end_latency_seconds_count") >= 10
     text = urllib.request.urlopen(service.metrics_url, timeout=5).read().decode()
     assert "count" not in re.findall(r'stream="([^"]+)"', text)  # no per-stream labels
-    # every process reports its resident memory (what an operator watches for leaks)
-    memory = dict(re.findall(r'^arcf_process_resident_bytes\{[^}]*process="([^"]+)"[^}]*\}'
-                             r'\s+([0-9.eE+]+)$', text, flags=re.M))
+    # every process reports its resident memory (what an operator watches for leaks; a
+    # worker sets it once a second, so a service just started may not have yet)
+    memory: dict[str, float] = {}
+
+    def reported() -> bool:
+        memory.update(by_label(fetch(service.metrics_url), "arcf_process_resident_bytes",
+                               "process"))
+        return len(memory) == 3 and all(v > 0 for v in memory.values())
+
+    wait_until(reported, timeout=30, what="every process's resident memory")
     assert set(memory) == {"main", "worker-0", "worker-1"}
-    assert all(20e6 < float(v) < 2e9 for v in memory.values())
+    assert all(20e6 < v < 2e9 for v in memory.values()), memory
+    # where the workers' CPU went, by stage (added once a second): JPEG frames are received,
+    # parsed, decoded, tracked and published; nothing is a video picture to convert
+    stages: dict[str, float] = {}
+
+    def staged() -> bool:
+        stages.update(by_label(fetch(service.metrics_url), "arcf_stage_cpu_seconds_total",
+                               "stage"))
+        return all(stages.get(k, 0.0) > 0 for k in ("receive", "parse", "decode", "track",
+                                                     "publish", "metrics"))
+
+    wait_until(staged, timeout=30, what="every stage's CPU time reported")
+    assert set(stages) <= set(STAGES) and stages.get("convert", 0.0) == 0.0
 
 
 def test_flooded_stream_drops_are_accounted_and_other_streams_unaffected(service, frames) -> None:
