@@ -153,8 +153,8 @@ def cmd_track(args: argparse.Namespace) -> int:
 
 
 def cmd_models(args: argparse.Namespace) -> int:
-    """Which networks the folder holds, checked file by file; 1 if a file is altered or a
-    ``--require``d network cannot run."""
+    """Which networks the folder holds, checked file by file; 1 if a network's files differ or
+    one is missing beside the others, or a ``--require``d network cannot run."""
     from .models import NETWORKS, ModelNotFoundError, model_paths, models_root
 
     root = Path(args.dir).expanduser() if args.dir else models_root()
@@ -166,7 +166,7 @@ def cmd_models(args: argparse.Namespace) -> int:
             print(f"  {network}: ok")
         except ModelNotFoundError as exc:
             failed |= exc.altered or network in args.require
-            print(f"  {network}: {'ALTERED' if exc.altered else 'missing'}: {exc}")
+            print(f"  {network}: {'BROKEN' if exc.altered else 'missing'}: {exc}")
     return 1 if failed else 0
 
 
@@ -200,15 +200,17 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--colornames", help="path of cn_norm_32768x10.npy (else $ARCF_COLORNAMES)")
     t.set_defaults(func=cmd_track)
 
+    from .models import NETWORKS
+
     m = sub.add_parser(
         "models", help="check the Siamese networks' files (size and SHA-256)",
         description="List the networks the Siamese presets need and whether the models folder "
-        "holds the published files. Exit status 1 if a file is altered or a --require'd network "
-        "is missing.")
+        "holds the published files. Exit status 1 if a network's folder holds a file that "
+        "differs or lacks one, or a --require'd network is missing.")
     m.add_argument("--dir", help="the models folder (default: $ARCF_MODELS, else "
                    "../shared/models beside the data)")
-    m.add_argument("--require", action="append", default=[], metavar="NETWORK",
-                   help="fail unless this network (nanotrack, vittrack) can run")
+    m.add_argument("--require", action="append", default=[], choices=sorted(NETWORKS),
+                   help="fail unless this network can run")
     m.set_defaults(func=cmd_models)
 
     from .eval.cli import add_parser as add_eval_parser

@@ -31,8 +31,8 @@ MODELS_ENV = "ARCF_MODELS"
 class ModelNotFoundError(FileNotFoundError):
     """A network file is missing, or is not the published file (size or SHA-256 differ).
 
-    ``altered`` tells the two apart: a missing file is a folder not filled yet, an altered one
-    is a wrong or damaged download."""
+    ``altered`` tells a folder not filled yet (the network's sub-folder absent) from a wrong,
+    damaged or half-done copy (a file that differs, or missing beside its network's others)."""
 
     def __init__(self, message: str, altered: bool = False) -> None:
         super().__init__(message)
@@ -114,7 +114,8 @@ def model_paths(network: str, root: str | os.PathLike[str] | None = None) -> tup
             stat = path.stat()
         except OSError:
             raise ModelNotFoundError(f"{network}: no file {path}; "
-                                     + _where_to_get(network, base)) from None
+                                     + _where_to_get(network, base),
+                                     altered=path.parent.is_dir()) from None
         key = (str(path.resolve()), stat.st_size, stat.st_mtime_ns)
         if key not in _checked:
             if stat.st_size != m.size or _sha256(path) != m.sha256:

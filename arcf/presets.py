@@ -135,7 +135,8 @@ class TrackerParams:
     #: by the remaining fraction of a cell with the DFT's shift theorem (as ECO's
     #: ``shift_sample``, Danelljan et al., CVPR 2017), which saves one window and its fHOG per
     #: frame; an approximation (the wrapped-in border is the opposite border's, the cell grid
-    #: is the detection window's). It loses UAV123 truck4_2 in ARCF-H, so no preset uses it
+    #: is the detection window's). It loses UAV123 truck4_2 in ARCF-H, so no ARCF preset uses
+    #: it (the hybrid's verifier does: its box is the network's)
     #: (docs/benchmarks.md, "Speed").
     training_sample: TrainingSampleMode = "extract"
     #: Scale each feature sample to unit mean energy per element, as ECO/STRCF's

@@ -10,7 +10,7 @@ claimed ``tracking`` after the flag, frames not ``tracking`` per 1,000 frames wi
 CSRT reports no state (always ``tracking``) and runs from a separate virtual environment with
 ``opencv-contrib-python-headless`` (``--setup-csrt`` creates ``.venv-csrt``; see speed.py).
 
-    python benchmarks/compare.py --setup-csrt        # about 8 minutes on 2 cores
+    python benchmarks/compare.py --setup-csrt        # about 4 minutes on 2 cores
     python benchmarks/compare.py --trackers arcf-nano,nanotrack
 """
 

@@ -29,14 +29,15 @@ from pathlib import Path
 from typing import Any
 
 ROOT = Path(__file__).resolve().parent.parent
-MAIN = "main process (control, metrics; the embedded router)"
+MAIN = "main process (control, metrics; the router, if embedded)"
 ROUTER = "external router"
 
 
 def library_alone(clip: Any, preset: str, frames: int, pace_s: float = 0.0) -> dict[str, float]:
     """Decode + track the clip's frames in this process: CPU ms per frame of each, back to
     back, or sleeping ``pace_s`` after each frame as a camera's stream leaves a worker idle
-    (caches go cold between frames: the same work costs more CPU)."""
+    (caches go cold between frames: the same work costs more CPU). A video picture's "decode"
+    includes its conversion to BGR (the service counts it apart, as "convert")."""
     import cv2
     import numpy as np
 
@@ -102,8 +103,15 @@ def service_run(clip: Any, preset: str, frames: int, fps: float,
                 raise SystemExit("not every frame was published")
             fleet.settle(timeout=30)
             main1, worker1, router1 = cpu_seconds(svc.proc.pid), cpu_seconds(worker), router_cpu()
-            time.sleep(1.2)  # the worker adds its stage times once a second
+            # the worker adds its stage times once a second (an idle one wakes every 0.5 s):
+            # read until two readings 2 s apart agree
             stages1 = by_label(fetch(svc.metrics_url), "arcf_stage_cpu_seconds_total", "stage")
+            for _ in range(10):
+                time.sleep(2.0)
+                again = by_label(fetch(svc.metrics_url), "arcf_stage_cpu_seconds_total", "stage")
+                if again == stages1:
+                    break
+                stages1 = again
             answered = len({r.frame_seq for r in stream.record.received})
     if answered < frames:
         print(f"# {frames - answered} frames without a result", file=sys.stderr)

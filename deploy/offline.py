@@ -26,6 +26,7 @@ Each step is skipped when its result is already there (``--force`` redoes it).
 from __future__ import annotations
 
 import argparse
+import filecmp
 import os
 import platform
 import shutil
@@ -89,15 +90,31 @@ def build_wheelhouse(dest: Path, machine: str, force: bool) -> None:
         f"{time.monotonic() - t0:.0f} s")
 
 
+def models_source() -> Path:
+    """Where the network files come from by default: ``$ARCF_MODELS``, else ``models/``
+    beside the data root (``$ARCF_DATA``, else ``../shared/data``), as the package finds them."""
+    if os.environ.get("ARCF_MODELS"):
+        return Path(os.environ["ARCF_MODELS"]).expanduser()
+    data = os.environ.get("ARCF_DATA")
+    return (Path(data).expanduser() if data else ROOT.parent / "shared" / "data").parent / "models"
+
+
 def copy_models(source: Path, dest: Path) -> None:
-    """Every network folder's ONNX files from ``source`` into ``dest`` (checked in the build)."""
+    """``dest`` made to hold exactly ``source``'s network files (``<network>/*.onnx``): the
+    ones that differ copied, the ones gone from ``source`` removed (the build checks each)."""
     files = sorted(source.glob("*/*.onnx")) if source.is_dir() else []
+    wanted = {dest / f.parent.name / f.name: f for f in files}
+    for old in dest.glob("*/*"):
+        if old not in wanted:
+            old.unlink()
+    for folder in dest.glob("*/"):
+        if folder.is_dir() and not any(folder.iterdir()):
+            folder.rmdir()
     if not files:
         log(f"no network files under {source}: the image will carry no Siamese models")
         return
-    for src in files:
-        target = dest / src.parent.name / src.name
-        if target.is_file() and target.stat().st_size == src.stat().st_size:
+    for target, src in wanted.items():
+        if target.is_file() and filecmp.cmp(src, target, shallow=False):
             continue
         target.parent.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(src, target)
@@ -165,10 +182,7 @@ def main(argv: list[str] | None = None) -> int:
     if "wheels" in steps:
         build_wheelhouse(args.wheelhouse, args.machine, args.force)
     if "models" in steps:
-        source = args.models_from or Path(os.environ.get(
-            "ARCF_MODELS", Path(os.environ.get("ARCF_DATA", ROOT.parent / "shared" / "data"))
-            .parent / "models"))
-        copy_models(source, MODELS)
+        copy_models(args.models_from or models_source(), MODELS)
     if "base" in steps:
         build_base(args.base_tag, args.mirror, args.suite, args.force)
     return 0

@@ -171,24 +171,28 @@ class Inbox:
     def __call__(self, sample: Any) -> None:
         """A sample on the stream's frames key (a ``frame`` message)."""
         c0 = time.thread_time()
-        if str(sample.key_expr) != self.key:
-            self.metrics.ERRORS.labels(kind=ErrorCode.INVALID_KEY.value).inc()
-        else:
-            self._take(sample, "frame", None)
-        if self.clock is not None:
-            self.clock.since("receive", c0)
+        try:
+            if str(sample.key_expr) != self.key:
+                self.metrics.ERRORS.labels(kind=ErrorCode.INVALID_KEY.value).inc()
+            else:
+                self._take(sample, "frame", None)
+        finally:
+            if self.clock is not None:
+                self.clock.since("receive", c0)
 
     def video(self, sample: Any) -> None:
         """A sample on the stream's CompressedVideo key (CDR)."""
         c0 = time.thread_time()
-        if str(sample.key_expr) != self.video_key:
-            self.metrics.ERRORS.labels(kind=ErrorCode.INVALID_KEY.value).inc()
-        else:
-            self.limit = self.video_queue
-            seq, self.video_seq = self.video_seq, self.video_seq + 1
-            self._take(sample, "compressed_video", seq)
-        if self.clock is not None:
-            self.clock.since("receive", c0)
+        try:
+            if str(sample.key_expr) != self.video_key:
+                self.metrics.ERRORS.labels(kind=ErrorCode.INVALID_KEY.value).inc()
+            else:
+                self.limit = self.video_queue
+                seq, self.video_seq = self.video_seq, self.video_seq + 1
+                self._take(sample, "compressed_video", seq)
+        finally:
+            if self.clock is not None:
+                self.clock.since("receive", c0)
 
     def _take(self, sample: Any, source: str, seq: int | None) -> None:
         self.metrics.FRAMES_RECEIVED.inc()

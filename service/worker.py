@@ -661,17 +661,11 @@ class Worker:
         m, clock = self.metrics, self.clock
         c0 = time.thread_time()
         try:
-            frame = decode(payload, expected=Frame, max_payload=self.settings.max_payload)
-        except SchemaError as exc:
-            self._error(stream, exc.code, str(exc), None)
+            frame = self._parse(stream, payload)
+        finally:  # a refused frame's checks are parsing too
+            clock.since("parse", c0)
+        if frame is None:
             return None
-        if frame.stream_id != stream.stream_id:
-            self._error(stream, ErrorCode.INVALID_KEY,
-                        f"frame says stream {frame.stream_id!r} on {stream.stream_id!r}", frame.seq)
-            return None
-        if not self._admit(stream, frame.seq):
-            return None
-        clock.since("parse", c0)
         if frame.encoding.is_video:
             stream.inbox.limit = stream.inbox.video_queue
             return self._decode_unit(stream, frame.seq, frame.capture_ts_ns, received_ns,
@@ -690,6 +684,20 @@ class Worker:
         self._error(stream, code, text, frame.seq)
         return _Picture(frame.seq, frame.capture_ts_ns, received_ns, decode_s, None, code, text)
 
+    def _parse(self, stream: _Stream, payload: bytes) -> Frame | None:
+        """The queued bytes as a checked ``frame`` message of this stream, admitted by its
+        numbering; None (reported) if not."""
+        try:
+            frame = decode(payload, expected=Frame, max_payload=self.settings.max_payload)
+        except SchemaError as exc:
+            self._error(stream, exc.code, str(exc), None)
+            return None
+        if frame.stream_id != stream.stream_id:
+            self._error(stream, ErrorCode.INVALID_KEY,
+                        f"frame says stream {frame.stream_id!r} on {stream.stream_id!r}", frame.seq)
+            return None
+        return frame if self._admit(stream, frame.seq) else None
+
     def _ingest_compressed_video(self, stream: _Stream, payload: bytes, received_ns: int,
                                  seq: int) -> _Picture | None:
         """A CDR foxglove.CompressedVideo from the stream's ``video_key``: numbered on arrival
@@ -699,15 +707,16 @@ class Worker:
             unit = parse_compressed_video(payload)
         except ValueError as exc:
             self._error(stream, ErrorCode.DECODE_ERROR, str(exc), seq)
+            self.clock.since("parse", c0)
             return None
         codec = CODECS.get(unit.format)
         if codec is None:
             self._error(stream, ErrorCode.DECODE_ERROR, f"CompressedVideo format "
                         f"{unit.format[:40]!r} is not h264 or h265", seq)
-            return None
-        if not self._admit(stream, seq):
-            return None
+        admitted = codec is not None and self._admit(stream, seq)
         self.clock.since("parse", c0)
+        if not admitted or codec is None:
+            return None
         return self._decode_unit(stream, seq, unit.timestamp_ns, received_ns, codec, unit.data)
 
     def _admit(self, stream: _Stream, seq: int) -> bool:
@@ -930,6 +939,7 @@ class Worker:
             self._drain()
 
     def close(self) -> None:
+        self.clock.flush()  # the last partial second
         self.instance_watch.undeclare()
         for sid in list(self.sessions):
             self._stop(sid)

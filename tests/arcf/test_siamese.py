@@ -131,15 +131,22 @@ def test_missing_or_altered_network_files_are_refused_with_where_to_get_them(
         arcf.create_tracker("vittrack", models_dir=tmp_path)
     why = available_presets(tmp_path)
     assert why["arcf-h"] == "" and why["nanotrack"] and why["arcf-nano"] and why["vittrack"]
-    # the check a deployment runs (the image's build): an altered file fails, a missing one
-    # only when required
+    # the check a deployment runs (the image's build): an altered file or a half-filled
+    # network folder fails, a network not carried only when required
     from arcf.cli import main as cli
 
     assert cli(["models"]) == 0
     assert cli(["models", "--dir", str(tmp_path)]) == 1  # vittrack altered
     (altered / src.name).unlink()
+    assert cli(["models", "--dir", str(tmp_path)]) == 1  # vittrack's folder, without its file
+    altered.rmdir()
     assert cli(["models", "--dir", str(tmp_path)]) == 0  # nothing carried, nothing wrong
     assert cli(["models", "--dir", str(tmp_path), "--require", "nanotrack"]) == 1
+    half = tmp_path / "nanotrack_v2"  # one of NanoTrack's two files: a half-done copy
+    half.mkdir()
+    first = model_paths("nanotrack")[0]
+    shutil.copy(first, half / first.name)
+    assert cli(["models", "--dir", str(tmp_path)]) == 1
 
 
 def test_the_models_folder_is_a_setting(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:

@@ -210,7 +210,8 @@ def _load_offline() -> Any:
     return module
 
 
-def test_offline_fills_the_models_folder_the_image_copies(tmp_path: Path) -> None:
+def test_offline_fills_the_models_folder_the_image_copies(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """deploy/offline.py's models step copies the network folders as published (the build
     context lets deploy/models through, and git keeps it empty)."""
     src = tmp_path / "models"
@@ -218,10 +219,21 @@ def test_offline_fills_the_models_folder_the_image_copies(tmp_path: Path) -> Non
     (src / "vittrack" / "net.onnx").write_bytes(b"onnx")
     (src / "README.md").write_text("not copied")
     dest = tmp_path / "dest"
+    (dest / "gone").mkdir(parents=True)
+    (dest / "gone" / "old.onnx").write_bytes(b"no longer in the source")
     offline = _load_offline()
     offline.copy_models(src, dest)
-    assert sorted(p.relative_to(dest).as_posix() for p in dest.rglob("*") if p.is_file()) == [
-        "vittrack/net.onnx"]
+    assert sorted(p.relative_to(dest).as_posix() for p in dest.rglob("*")) == [
+        "vittrack", "vittrack/net.onnx"]
+    (dest / "vittrack" / "net.onnx").write_bytes(b"ONNX")  # same size, other bytes: replaced
+    offline.copy_models(src, dest)
+    assert (dest / "vittrack" / "net.onnx").read_bytes() == b"onnx"
+    # by default from where the package finds them: $ARCF_MODELS, else beside the data root
+    monkeypatch.delenv("ARCF_MODELS", raising=False)
+    monkeypatch.setenv("ARCF_DATA", str(tmp_path / "data"))
+    assert offline.models_source() == tmp_path / "models"
+    monkeypatch.setenv("ARCF_MODELS", str(src))
+    assert offline.models_source() == src
     ignore = (DEPLOY.parent / ".dockerignore").read_text().split()
     assert ignore.index("!deploy/models") > ignore.index("deploy/*")
     assert (DEPLOY / "models" / ".gitignore").read_text().split()[-2:] == ["*", "!.gitignore"]
