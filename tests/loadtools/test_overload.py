@@ -140,7 +140,12 @@ def test_soak_sessions_come_and_go(wakeboard: list) -> None:
     # dozens of sessions started and stopped, some two to a stream, some on reused ids
     assert r["streams_started"] >= 25
     assert r["sessions_started"] == r["sessions_stopped"] > r["streams_started"]
-    assert r["ledger"]["unaccounted"] == 0 and r["ledger"]["out_of_order"] == 0
+    # every frame answered or counted in a later result's ``dropped``, except results the
+    # service published that never arrived: results go out with congestion control DROP,
+    # which a loaded machine's stalls exercise (the service's own count tells them apart)
+    lost_on_the_way = r["metrics_delta"]["arcf_results_published_total"] - r["ledger"]["results"]
+    assert r["ledger"]["unaccounted"] <= max(lost_on_the_way, 0), (r["ledger"], lost_on_the_way)
+    assert r["ledger"]["out_of_order"] == 0
     assert_only_frames_after_a_stop(r)
     # after warm-up the service's memory (anonymous, all its processes) stays flat
     assert r["growth_mb"] < 5.0  # leaking one tracker per session shows as about 8 MB
