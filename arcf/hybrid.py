@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from .presets import HybridParams, SiameseParams
+from .region import Region, RegionFrame, whole_frame
 from .siamese import SiameseTracker
 from .state import StateParams, TrackState
 from .tracker import ARCFTracker, Box, TrackResult
@@ -90,7 +91,12 @@ class HybridTracker:
             self.verifier.resume()
             self._agreeing = 0
 
-    def update(self, frame: np.ndarray) -> TrackResult:
+    def read_region(self) -> Region | None:
+        """None: the network reads the whole frame."""
+        return None
+
+    def update(self, frame: np.ndarray | RegionFrame) -> TrackResult:
+        frame = whole_frame(frame)
         seen = self.network.update(frame)
         self.verifier.steer(seen.box)
         checked = self.verifier.update(frame)

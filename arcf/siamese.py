@@ -28,6 +28,7 @@ import numpy as np
 from .errors import NotInitializedError
 from .models import model_paths
 from .presets import SiameseParams
+from .region import Region, RegionFrame, whole_frame
 from .state import TrackMonitor, TrackState
 from .tracker import Box, TrackResult, validate_box, validate_frame
 
@@ -94,9 +95,14 @@ class SiameseTracker:
         return TrackResult(box=(x, y, w, h), peak=1.0, psr=math.nan, aberrance=math.nan,
                            aberrance_release=math.nan, scale=1.0, frame_index=0)
 
-    def update(self, frame: np.ndarray) -> TrackResult:
+    def read_region(self) -> Region | None:
+        """None: OpenCV's network cuts its own search window from the whole frame."""
+        return None
+
+    def update(self, frame: np.ndarray | RegionFrame) -> TrackResult:
         if self._net is None:
             raise NotInitializedError("call init(frame, box) before update(frame)")
+        frame = whole_frame(frame)
         validate_frame(frame)
         if frame.shape[:2] != self._image_hw:
             from .errors import InvalidFrameError

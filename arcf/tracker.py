@@ -52,6 +52,7 @@ from .fourier import (
 )
 from .presets import HybridParams, SiameseParams, TrackerParams, preset_params
 from .reacquire import TEMPLATE_EVERY, TEMPLATE_KEEP, TargetTemplate
+from .region import Region, RegionFrame, clip_region, contains
 from .scale import DSSTScaleFilter, scale_limits, search_scale_factors
 from .state import TrackMonitor, TrackState
 
@@ -221,6 +222,11 @@ def _eco_sizing(p: TrackerParams, x: float, y: float, w: float, h: float) -> _Si
 _SIZINGS = {"filter_max_area": _bacf_sizing, "sample_area": _eco_sizing}
 
 
+#: Pixels added around :meth:`ARCFTracker.read_region`'s windows: the sampling pyramid
+#: extends its cut to whole blocks of up to 2^4 pixels.
+READ_MARGIN = 16
+
+
 class ARCFTracker:
     """ARCF-H, ARCF-HC or BACF, depending on its :class:`~arcf.presets.TrackerParams`.
 
@@ -319,14 +325,25 @@ class ARCFTracker:
             state=TrackState.TRACKING,
         )
 
-    def update(self, frame: np.ndarray) -> TrackResult:
+    def update(self, frame: np.ndarray | RegionFrame) -> TrackResult:
         """Track into the next frame: detect, measure the aberrance, judge the track's state,
         search the frame when lost (re-acquisition on), train (while tracking with
         re-acquisition on; else every frame, or only while tracking:
-        ``params.state.update_policy``), and say how confident the box is."""
+        ``params.state.update_policy``), and say how confident the box is.
+
+        ``frame`` may be a :class:`~arcf.region.RegionFrame` holding at least
+        :meth:`read_region`: the result is the one the whole frame gives (its ``whole()`` is
+        asked for when the track goes lost and searches, or when the region falls short)."""
         if self._state is None:
             raise NotInitializedError("call init(frame, box) before update(frame)")
         state, layout, policy = self.state, self.layout, self.params.state
+        partial: RegionFrame | None = None
+        if isinstance(frame, RegionFrame):
+            needed = self.read_region()
+            if needed is not None and contains(frame.region, needed):
+                partial, frame = frame, frame.pixels
+            else:
+                frame = frame.whole()
         image = self._frame_for_update(frame)
         state.frame_index += 1
         was_lost = self._monitor.state is TrackState.LOST
@@ -343,6 +360,8 @@ class ARCFTracker:
             # on what is not the target means nothing
             if state.tracked is not None:
                 state.scale_factor = state.tracked[1]
+            if partial is not None:  # the search reads the whole frame
+                image = self._frame_for_update(partial.whole())
             found = self._reacquire(image, verdict.strength)
             if found is not None:
                 read, state_now, jumped = found, TrackState.TRACKING, True
@@ -372,6 +391,40 @@ class ARCFTracker:
             state=state_now,
             reacquired=was_lost and state_now is TrackState.TRACKING,
         )
+
+    def read_region(self) -> Region | None:
+        """The pixels the next :meth:`update` reads, as a :data:`~arcf.region.Region` of the
+        frame, or None for the whole frame (before ``init``; while a lost track searches it).
+
+        A bound, not a trace: the detection windows around the rounded position at the
+        largest searched scale; the peak moves the target at most half the response map (plus
+        a cell) and the scale grows at most by the largest factor searched (the joint search's
+        or DSST's); every window cut after detection (the training sample, DSST's samples, the
+        look and the kept template) lies around the new position at the new scale; plus
+        :data:`READ_MARGIN` for the pyramid's whole blocks. tests/arcf/test_region.py checks
+        that frames undefined outside it give every preset's results bit for bit."""
+        if self._state is None:
+            return None
+        if self.params.state.reacquire and self._monitor.state is TrackState.LOST:
+            return None
+        layout, state = self.layout, self.state
+        r, c = self._sample_pos()
+        scale = state.scale_factor
+        searched = float(np.max(layout.scale_factors))
+        grow = searched
+        extent = float(layout.sample_sz)  # the largest window after detection, working px
+        if state.scale_filter is not None:
+            dsst = float(np.max(state.scale_filter.factors))
+            grow = max(grow, dsst)
+            extent = max(extent, max(layout.target_size) * dsst)
+        after = extent * min(scale * grow, layout.max_scale)
+        half = []
+        for axis in (0, 1):
+            reach = (layout.grid[axis] / 2 + 1) * layout.cell_px[axis] * scale * searched
+            detect = layout.sample_sz * scale * searched / 2
+            half.append(max(detect, reach + after / 2) + READ_MARGIN)
+        return clip_region(r - 1 - half[0], c - 1 - half[1], r - 1 + half[0] + 1,
+                           c - 1 + half[1] + 1, layout.image_hw)
 
     def steer(self, box: Box) -> None:
         """Search around ``box`` on the next ``update``, at its size: a companion tracker's box
@@ -776,7 +829,11 @@ class Tracker(Protocol):
 
     def init(self, frame: np.ndarray, box: Box | Any) -> TrackResult: ...
 
-    def update(self, frame: np.ndarray) -> TrackResult: ...
+    def update(self, frame: np.ndarray | RegionFrame) -> TrackResult: ...
+
+    def read_region(self) -> Region | None:
+        """The pixels the next ``update`` reads (:mod:`arcf.region`); None: the whole frame."""
+        ...
 
 
 def create_tracker(

@@ -12,6 +12,7 @@ from typing import cast
 import av
 import numpy as np
 
+from arcf.service.convert import picture_bgr
 from arcf.service.video import CODECS
 
 #: codec name on the wire (frame ``encoding``, CompressedVideo ``format``) -> FFmpeg's encoder
@@ -54,6 +55,7 @@ def encode_video(images: Iterable[np.ndarray], codec: str = "h264", fps: int = 3
 
 
 def decode_video(units: Iterable[bytes], codec: str = "h264") -> list[np.ndarray]:
-    """Every picture of a stream of access units, by one plain FFmpeg decoder, as BGR."""
+    """Every picture of a stream of access units, by one plain FFmpeg decoder, as BGR
+    converted as a worker converts it (``picture_bgr``)."""
     dec = cast(av.VideoCodecContext, av.CodecContext.create(CODECS[codec], "r"))
-    return [f.to_ndarray(format="bgr24") for u in units for f in dec.decode(av.Packet(u))]
+    return [picture_bgr(f) for u in units for f in dec.decode(av.Packet(u))]

@@ -4,19 +4,41 @@
 header first); ``decode_compressed`` is its decoder for JPEG / PNG bytes alone, which the
 load tools' library reference and the benchmarks use too, so that "the library alone" decodes
 exactly as a worker does.
+
+Given the region its trackers read (``arcf.region``), a worker decodes a JPEG only there
+(``decode_jpeg_region``): libjpeg-turbo's partial decompression through the small C module
+``_jpegregion``. Its pixels equal the whole decode's from 8 pixels inside the decoded
+rectangle's edges on (the triangle upsampling of the edge's chroma sees no neighbour there;
+tests/service/test_region_decode.py), so the rectangle asked for is the region widened by that.
 """
 
 from __future__ import annotations
 
+from types import ModuleType
 from typing import Any
 
 import cv2
 import numpy as np
 import simplejpeg
 
+from arcf.region import Region, RegionFrame, area
 from arcf.schemas import ErrorCode
 
 from .imagecheck import image_size
+
+_jpegregion: ModuleType | None
+try:
+    from . import _jpegregion
+except ImportError:  # not built (no compiler or libjpeg headers at install): whole pictures
+    _jpegregion = None
+
+#: Pixels by which a partially decoded rectangle's edges differ from the whole decode's.
+REGION_EDGE = 8
+#: A region larger than this share of the picture is decoded whole: the partial decode reads
+#: every row above the region's bottom anyway, and a frame that goes lost needs the rest.
+REGION_MAX_SHARE = 0.5
+#: Whether this install decodes JPEG regions (the C module was built).
+REGION_DECODING = _jpegregion is not None
 
 
 def decode_compressed(payload: bytes) -> np.ndarray:
@@ -59,9 +81,39 @@ def _decode_jpeg(payload: bytes) -> np.ndarray | None:
     return None
 
 
-def decode_image(frame: Any, max_pixels: int | None = None
-                 ) -> tuple[np.ndarray | None, tuple[ErrorCode, str] | None]:
-    """The frame's pixels as uint8 BGR or gray, or (None, (error code, message)).
+def decode_jpeg_region(payload: bytes, region: Region) -> RegionFrame | None:
+    """The JPEG's pixels inside ``region`` (at least), in a frame-sized array, the whole
+    picture on demand; None where a partial decode does not apply (no C module, a region over
+    ``REGION_MAX_SHARE`` of the picture, a picture the module does not take, damage: the
+    caller decodes the whole picture, which reports what is wrong)."""
+    # a picture cut short (no end marker) is left to the whole decode, which refuses it even
+    # where the cut lies below the region
+    if _jpegregion is None or not payload.endswith(b"\xff\xd9"):
+        return None
+    try:
+        width, height, components, _, _ = _jpegregion.header(payload)
+    except ValueError:
+        return None
+    if components not in (1, 3) or area(region) > REGION_MAX_SHARE * width * height:
+        return None
+    shape = (height, width, 3) if components == 3 else (height, width)
+    pixels = np.empty(shape, np.uint8)
+    t, lf, b, r = region
+    e = REGION_EDGE
+    try:
+        got = _jpegregion.decode_region(payload, pixels, t - e, lf - e, b + e, r + e)
+    except ValueError:
+        return None
+    # the decoded rectangle's own edges (inside the picture) are the upsampler's guesses
+    exact = (got[0] + e if got[0] > 0 else 0, got[1] + e if got[1] > 0 else 0,
+             got[2] - e if got[2] < height else height, got[3] - e if got[3] < width else width)
+    return RegionFrame(pixels, exact, lambda: decode_compressed(payload))
+
+
+def decode_image(frame: Any, max_pixels: int | None = None, region: Region | None = None
+                 ) -> tuple[np.ndarray | RegionFrame | None, tuple[ErrorCode, str] | None]:
+    """The frame's pixels as uint8 BGR or gray, or (None, (error code, message)); with a
+    ``region``, a JPEG's may come as a :class:`~arcf.region.RegionFrame` holding it.
 
     Compressed images are sized from their header first: more than ``max_pixels`` is refused
     before ``cv2.imdecode`` allocates anything (a decompression bomb costs nothing)."""
@@ -75,6 +127,10 @@ def decode_image(frame: Any, max_pixels: int | None = None
                 return None, (ErrorCode.IMAGE_TOO_LARGE,
                               f"{frame.encoding} declares {size[0]}x{size[1]} = "
                               f"{size[0] * size[1]} pixels; the limit is {max_pixels}")
+        if region is not None and frame.encoding == "jpeg":
+            partial = decode_jpeg_region(frame.payload, region)
+            if partial is not None:
+                return partial, None
         try:
             return decode_compressed(frame.payload), None
         except ValueError as exc:

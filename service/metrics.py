@@ -22,6 +22,9 @@ DECODE = Histogram("arcf_decode_seconds", "Image decoding time per frame", bucke
 TRACK = Histogram("arcf_track_seconds", "Tracker time per session and frame", buckets=STEP_BUCKETS)
 FRAMES_RECEIVED = Counter("arcf_frames_received_total", "Frames taken from the network by workers")
 FRAMES_PROCESSED = Counter("arcf_frames_processed_total", "Frames decoded and tracked")
+FRAMES_DECODED = Counter(
+    "arcf_frames_decoded_total", "Pictures decoded (JPEG) or converted (video) for tracking, "
+    "whole or only where the trackers read them", ["extent"])
 FRAMES_DROPPED = Counter(
     "arcf_frames_dropped_total", "Frames skipped: gaps in a stream's sequence numbers"
 )

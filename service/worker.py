@@ -24,6 +24,7 @@ import cv2
 import numpy as np
 
 from arcf import ARCFError, create_tracker, warm_up
+from arcf.region import Region, RegionFrame, cover, whole_frame
 from arcf.schemas import (
     ErrorCode,
     ErrorMessage,
@@ -46,7 +47,7 @@ from .commands import (
     StartSession,
     StopSession,
 )
-from .decoding import decode_image
+from .decoding import REGION_DECODING, decode_image
 from .foxglove import parse_compressed_video
 from .intake import Inbox, Numbering, Verdict
 from .settings import LOG_FORMAT
@@ -120,9 +121,10 @@ class _Picture:
     capture_ts_ns: int
     received_ns: int
     decode_s: float
-    #: (H, W, 3) or (H, W) uint8, BGR or grey; None when the frame gave nothing to track or
-    #: is a video picture not converted yet
-    image: np.ndarray | None
+    #: (H, W, 3) or (H, W) uint8, BGR or grey (a JPEG decoded where the trackers read it: a
+    #: ``RegionFrame``); None when the frame gave nothing to track or is a video picture not
+    #: converted yet
+    image: np.ndarray | RegionFrame | None
     code: ErrorCode | None = None
     text: str | None = None
     #: a decoded video picture, converted to ``image`` only if it is tracked (``pixels``): a
@@ -133,12 +135,12 @@ class _Picture:
     def has_pixels(self) -> bool:
         return self.image is not None or self.video is not None
 
-    def pixels(self) -> np.ndarray | None:
-        """The picture's pixels, converting a video picture on first use (its time counted
-        in ``decode_s``)."""
+    def pixels(self, region: Region | None) -> np.ndarray | RegionFrame | None:
+        """The picture's pixels, converting a video picture on first use, where the trackers
+        read (``region``; its time counted in ``decode_s``)."""
         if self.image is None and self.video is not None:
             t0 = time.perf_counter()
-            self.image, self.video = self.video.image, None
+            self.image, self.video = self.video.pixels(region), None
             self.decode_s += time.perf_counter() - t0
         return self.image
 
@@ -173,6 +175,19 @@ class _Stream:
     trimmed_before: int = 0
 
 
+
+def _read_region(stream: _Stream) -> Region | None:
+    """Where the stream's trackers read the next frame (None: the whole frame, as for a
+    session about to start on it or a track searching for its target)."""
+    regions: list[Region | None] = []
+    for s in stream.sessions.values():
+        if s.pending_box is not None:
+            return None
+        if s.tracker.initialized:
+            regions.append(s.tracker.read_region())
+    return cover(regions)
+
+
 class Worker:
     def __init__(self, index: int, settings: Any, commands: Any, responses: Any,
                  stop: Any) -> None:
@@ -191,6 +206,9 @@ class Worker:
         self.zenoh = zenoh
         # before the liveliness token: "ready" means no first-frame import or compile stall
         log.debug("tracker kernels ready in %.2f s", warm_up())
+        if not REGION_DECODING:
+            log.warning("JPEG frames are decoded whole: the _jpegregion module was not built "
+                        "(it needs a C compiler and libjpeg-turbo's headers at install)")
         self.session = open_session("client", connect=settings.worker_endpoints,
                                     config_file=settings.zenoh_config, lease_ms=settings.lease_ms,
                                     max_message_size=settings.transport_limit)
@@ -673,12 +691,14 @@ class Worker:
         stream.decoder, stream.inbox.limit = None, stream.inbox.image_queue
         stream.unit_times.clear()
         t0, c0 = time.perf_counter(), time.thread_time()
-        image, problem = decode_image(frame, self.settings.max_pixels)
+        image, problem = decode_image(frame, self.settings.max_pixels, _read_region(stream))
         decode_s = time.perf_counter() - t0
         c0 = clock.since("decode", c0)
         m.DECODE.observe(decode_s)
         clock.since("metrics", c0)
         if image is not None:
+            m.FRAMES_DECODED.labels(
+                extent="region" if isinstance(image, RegionFrame) else "whole").inc()
             return _Picture(frame.seq, frame.capture_ts_ns, received_ns, decode_s, image)
         code, text = problem or (ErrorCode.DECODE_ERROR, f"cannot decode {frame.encoding} frame")
         self._error(stream, code, text, frame.seq)
@@ -788,10 +808,14 @@ class Worker:
         """Every session of the stream on one picture (or told why there is none)."""
         m, clock = self.metrics, self.clock
         c0, converts = time.thread_time(), picture.image is None and picture.video is not None
-        image = picture.pixels()
+        image = picture.pixels(_read_region(stream) if converts else None)
         stream.window_decode_s += time.thread_time() - c0
         if converts:
-            clock.since("convert", c0)
+            c0 = clock.since("convert", c0)
+            if image is not None:
+                m.FRAMES_DECODED.labels(
+                    extent="region" if isinstance(image, RegionFrame) else "whole").inc()
+            clock.since("metrics", c0)
         decode_s, received_ns = picture.decode_s, picture.received_ns
         code, text = picture.code, picture.text
         if image is not None:
@@ -809,7 +833,7 @@ class Worker:
                 s.pending_seq is None or picture.seq >= s.pending_seq
             ):
                 try:
-                    r = s.tracker.init(image, s.pending_box)
+                    r = s.tracker.init(whole_frame(image), s.pending_box)
                     status = s.pending_status
                     if s.pending_seq is not None and picture.seq > s.pending_seq:
                         message = (f"box of frame {s.pending_seq} applied to frame {picture.seq}"

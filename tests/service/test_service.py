@@ -27,7 +27,7 @@ from arcf.loadtools.procs import ServiceProcess as _Service
 from arcf.loadtools.waiting import wait_until
 from arcf.schemas import KeySpace
 from arcf.service.client import ServiceError, TrackingClient
-from arcf.service.decoding import decode_compressed
+from arcf.service.decoding import REGION_DECODING, decode_compressed
 from arcf.service.scrape import by_label, fetch
 from arcf.service.settings import ServiceSettings
 from arcf.service.stages import STAGES
@@ -221,6 +221,7 @@ def test_metrics_count_what_was_sent(service, frames) -> None:
     seq, data = frames
     before_results = service.metric("arcf_results_published_total")
     before_frames = service.metric("arcf_frames_processed_total")
+    before_decoded = by_label(fetch(service.metrics_url), "arcf_frames_decoded_total", "extent")
     with TrackingClient(connect=[service.endpoint], frame_congestion="block") as client, \
             _lockstep(client, {"count": (_clip(seq, data[:10]), ["bacf"])}) as fleet:
         got = _got(fleet, "count")
@@ -232,6 +233,13 @@ def test_metrics_count_what_was_sent(service, frames) -> None:
     assert service.metric("arcf_results_published_total") - before_results == 10
     assert service.metric("arcf_frames_processed_total") - before_frames == 10
     assert service.metric("arcf_end_to_end_latency_seconds_count") >= 10
+    # the first frame decoded whole (the session starts on it), the others only where the
+    # tracker reads them (a small target: bacf's windows cover a fraction of the frame)
+    decoded = by_label(fetch(service.metrics_url), "arcf_frames_decoded_total", "extent")
+    delta = {k: decoded.get(k, 0.0) - before_decoded.get(k, 0.0) for k in ("region", "whole")}
+    assert delta["region"] + delta["whole"] == 10 and delta["whole"] >= 1
+    if REGION_DECODING:
+        assert delta["region"] >= 5, delta
     text = urllib.request.urlopen(service.metrics_url, timeout=5).read().decode()
     assert "count" not in re.findall(r'stream="([^"]+)"', text)  # no per-stream labels
     # every process reports its resident memory (what an operator watches for leaks; a

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from arcf.data import data_root
+from arcf.service.convert import picture_bgr
 from arcf.service.video import Outcome, StreamDecoder, nal_units
 
 SEQ = data_root() / "uav123_10fps" / "data_seq" / "wakeboard7"
@@ -45,7 +46,7 @@ def h264() -> list[bytes]:
 
 def plain(units: list[bytes], codec: str = "h264") -> list[np.ndarray]:
     ctx = av.CodecContext.create(codec, "r")
-    return [f.to_ndarray(format="bgr24") for u in units for f in ctx.decode(av.Packet(u))]
+    return [picture_bgr(f) for u in units for f in ctx.decode(av.Packet(u))]
 
 
 def test_an_intact_stream_decodes_as_ffmpeg_does(h264: list[bytes]) -> None:

@@ -1,0 +1,127 @@
+"""``read_region``: a frame known only inside it gives every preset's results bit for bit.
+
+Each frame is handed over as a ``RegionFrame`` whose pixels outside the tracker's region are
+random (a decoder that skipped them leaves whatever the buffer held), and the results are
+compared, field by field, with the same preset's on the whole frames. The sequences cover a
+tiny target (truck4_1), a lost one searched for over the whole frame (wakeboard7: the frames
+where ``whole()`` is asked for), and large ones whose region is the frame.
+"""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+import pytest
+
+import arcf
+from arcf.data import default_colornames_path
+from arcf.eval.datasets import load_dataset
+from arcf.region import RegionFrame, area, clip_region, contains, cover
+
+pytestmark = pytest.mark.slow
+
+CASES = [("uav123_10fps", "truck4_1"), ("uav123_10fps", "wakeboard7"),
+         ("dtb70", "MountainBike6")]
+FRAMES = 60
+
+
+def same(a: arcf.TrackResult, b: arcf.TrackResult) -> bool:
+    fields = list(vars(a))
+    return all(getattr(a, f) == getattr(b, f) or (
+        isinstance(getattr(a, f), float) and math.isnan(getattr(a, f))
+        and math.isnan(getattr(b, f))) for f in fields)
+
+
+@pytest.fixture(scope="module")
+def sequences() -> dict[str, tuple[list[np.ndarray], tuple[float, ...]]]:
+    out = {}
+    for dataset, name in CASES:
+        try:
+            (seq,) = load_dataset(dataset, sequences=[name])
+        except (FileNotFoundError, KeyError):
+            pytest.skip("needs ../shared/data")
+        out[name] = ([cv2.imread(str(p)) for p in seq.frames[:FRAMES]],
+                     tuple(float(v) for v in seq.groundtruth[0]))
+    return out
+
+
+@pytest.mark.parametrize("preset", ["arcf-h", "arcf-hc", "bacf"])
+@pytest.mark.parametrize("name", [n for _, n in CASES])
+def test_a_frame_known_only_where_the_tracker_reads_gives_its_results(
+        preset: str, name: str, sequences: dict) -> None:
+    frames, box = sequences[name]
+    kw = {"colornames_path": default_colornames_path()} if preset == "arcf-hc" else {}
+    whole, partial = arcf.create_tracker(preset, **kw), arcf.create_tracker(preset, **kw)
+    assert partial.read_region() is None  # before init: the whole frame
+    whole.init(frames[0], box)
+    partial.init(frames[0], box)
+    rng = np.random.default_rng(7)
+    asked_whole, went_lost, shares = 0, 0, []
+    for k, frame in enumerate(frames[1:], 1):
+        region = partial.read_region()
+        if region is None:
+            given: np.ndarray | RegionFrame = frame
+        else:
+            t, lf, b, r = region
+            assert 0 <= t < b <= frame.shape[0] and 0 <= lf < r <= frame.shape[1]
+            pixels = rng.integers(0, 256, frame.shape, dtype=np.uint8)
+            pixels[t:b, lf:r] = frame[t:b, lf:r]
+            shares.append(area(region) / (frame.shape[0] * frame.shape[1]))
+
+            def complete(frame: np.ndarray = frame) -> np.ndarray:
+                nonlocal asked_whole
+                asked_whole += 1
+                return frame
+
+            given = RegionFrame(pixels, region, complete)
+        a, b_ = whole.update(frame), partial.update(given)
+        assert same(a, b_), f"{preset} {name} frame {k}: {a} != {b_}"
+        went_lost += region is not None and partial.read_region() is None
+    assert shares, "the tracker never named a region"
+    # a track that went lost on a region frame searched the whole frame, asked for then
+    assert asked_whole == went_lost
+    if name == "truck4_1":  # a 11x8 px target: a small part of the frame is read
+        assert max(shares) < 0.1
+
+
+def test_a_region_that_falls_short_gets_the_whole_frame(sequences: dict) -> None:
+    frames, box = sequences["truck4_1"]
+    whole, partial = arcf.create_tracker("arcf-h"), arcf.create_tracker("arcf-h")
+    whole.init(frames[0], box)
+    partial.init(frames[0], box)
+    asked = []
+    for frame in frames[1:6]:
+        region = partial.read_region()
+        assert region is not None
+        short = (region[0] + 40, region[1] + 40, region[2], region[3])
+        pixels = np.zeros_like(frame)
+        given = RegionFrame(pixels, short, lambda frame=frame: asked.append(1) or frame)
+        assert same(whole.update(frame), partial.update(given))
+    assert len(asked) == 5
+
+
+@pytest.mark.parametrize("preset", ["nanotrack", "arcf-nano"])
+def test_network_presets_read_the_whole_frame(preset: str, sequences: dict) -> None:
+    frames, box = sequences["wakeboard7"]
+    try:
+        whole, partial = arcf.create_tracker(preset), arcf.create_tracker(preset)
+    except arcf.ModelNotFoundError:
+        pytest.skip("needs ../shared/models")
+    whole.init(frames[0], box)
+    partial.init(frames[0], box)
+    asked = []
+    for frame in frames[1:4]:
+        assert partial.read_region() is None
+        given = RegionFrame(np.zeros_like(frame), (0, 0, 10, 10),
+                            lambda frame=frame: asked.append(1) or frame)
+        assert same(whole.update(frame), partial.update(given))
+    assert len(asked) == 3
+
+
+def test_region_helpers() -> None:
+    assert clip_region(-5.2, 3.5, 10.1, 2000, (100, 200)) == (0, 3, 11, 200)
+    assert cover([(0, 0, 5, 5), (3, 4, 10, 6)]) == (0, 0, 10, 6)
+    assert cover([(0, 0, 5, 5), None]) is None and cover([]) is None
+    assert contains((0, 0, 10, 10), (2, 2, 10, 9)) and not contains((1, 0, 10, 10), (0, 0, 2, 2))

@@ -1,0 +1,131 @@
+"""Pictures decoded or converted only where the trackers read: the same pixels as the whole
+picture's there, bit for bit, and the whole picture wherever that cannot be promised.
+
+JPEG: the shared sequences' own files (4:2:0) and re-encodings of them in the layouts cameras
+send (4:4:4, 4:2:2, grey, restart markers, odd sizes), cut at random rectangles. H.264: a
+real libx264 stream of a shared sequence, converted by regions against the whole picture's
+conversion.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import av
+import cv2
+import numpy as np
+import pytest
+import simplejpeg
+
+from arcf.eval.datasets import load_dataset
+from arcf.loadtools.video import encode_video
+from arcf.region import RegionFrame, contains
+from arcf.service import decoding
+from arcf.service.convert import converts_by_region, picture_bgr, picture_bgr_region
+from arcf.service.decoding import decode_compressed, decode_jpeg_region
+
+pytestmark = pytest.mark.skipif(not decoding.REGION_DECODING,
+                                reason="the _jpegregion module was not built")
+
+SEQUENCES = [("uav123_10fps", "wakeboard7"), ("uav123_10fps", "truck4_1"), ("dtb70", "Animal3")]
+
+
+def _frames(dataset: str, name: str) -> list[Path]:
+    try:
+        (seq,) = load_dataset(dataset, sequences=[name])
+    except (FileNotFoundError, KeyError):
+        pytest.skip("needs ../shared/data")
+    return list(seq.frames)
+
+
+def _files() -> list[bytes]:
+    return [p.read_bytes() for ds, name in SEQUENCES for p in _frames(ds, name)[::25]]
+
+
+@pytest.fixture(scope="module")
+def jpegs() -> list[bytes]:
+    files = _files()
+    image = decode_compressed(files[0])
+    encoded = []
+    for params in ([cv2.IMWRITE_JPEG_SAMPLING_FACTOR, cv2.IMWRITE_JPEG_SAMPLING_FACTOR_444],
+                   [cv2.IMWRITE_JPEG_SAMPLING_FACTOR, cv2.IMWRITE_JPEG_SAMPLING_FACTOR_422],
+                   [cv2.IMWRITE_JPEG_RST_INTERVAL, 3], [cv2.IMWRITE_JPEG_QUALITY, 40]):
+        encoded.append(cv2.imencode(".jpg", image, params)[1].tobytes())
+    encoded.append(cv2.imencode(".jpg", cv2.cvtColor(image, cv2.COLOR_BGR2GRAY))[1].tobytes())
+    encoded.append(cv2.imencode(".jpg", image[:357, :611])[1].tobytes())  # not whole MCUs
+    return files + encoded
+
+
+def _random_regions(rng: np.random.Generator, h: int, w: int, n: int):  # type: ignore[no-untyped-def]
+    for _ in range(n):
+        rh = int(rng.integers(1, h // 2))
+        rw = int(rng.integers(1, max(2, min(w, h * w // 2 // rh))))
+        t, lf = int(rng.integers(0, h - rh + 1)), int(rng.integers(0, w - rw + 1))
+        yield t, lf, t + rh, lf + rw
+    yield 0, 0, h // 3, w  # the top edge, the whole width
+    yield h - 40, w - 40, h, w  # a corner
+
+
+def test_a_jpeg_region_has_the_whole_decodes_pixels(jpegs: list[bytes]) -> None:
+    rng = np.random.default_rng(3)
+    checked = 0
+    for data in jpegs:
+        whole = decode_compressed(data)
+        h, w = whole.shape[:2]
+        for region in _random_regions(rng, h, w, 6):
+            got = decode_jpeg_region(data, region)
+            assert isinstance(got, RegionFrame), region
+            assert contains(got.region, region)
+            assert got.pixels.shape == whole.shape
+            t, lf, b, r = got.region
+            np.testing.assert_array_equal(got.pixels[t:b, lf:r], whole[t:b, lf:r])
+            np.testing.assert_array_equal(got.whole(), whole)
+            checked += 1
+    assert checked >= 8 * len(jpegs)
+
+
+def test_what_a_region_cannot_promise_is_decoded_whole(jpegs: list[bytes]) -> None:
+    data = jpegs[0]
+    image = decode_compressed(data)
+    h, w = image.shape[:2]
+    # most of the picture: the whole decode is cheaper
+    assert decode_jpeg_region(data, (0, 0, h, w)) is None
+    # cut short: the whole decode refuses it, wherever the cut lies
+    assert decode_jpeg_region(data[: len(data) * 3 // 4], (0, 0, 16, 16)) is None
+    # progressive: decoded whole
+    progressive = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_PROGRESSIVE, 1])[1].tobytes()
+    assert decode_jpeg_region(progressive, (0, 0, 16, 16)) is None
+    # not a JPEG at all
+    assert decode_jpeg_region(b"\xff\xd8garbage\xff\xd9", (0, 0, 16, 16)) is None
+    # a picture simplejpeg would refuse still gets its refusal from the whole decode
+    with pytest.raises(ValueError):
+        simplejpeg.decode_jpeg(data[:100])
+
+
+@pytest.fixture(scope="module")
+def pictures() -> list[av.VideoFrame]:
+    paths = _frames(*SEQUENCES[0])[:8]
+    units = encode_video([cv2.imread(str(p)) for p in paths])
+    dec = av.CodecContext.create("h264", "r")
+    return [f for u in units for f in dec.decode(av.Packet(u))]
+
+
+def test_an_h264_region_converts_to_the_whole_pictures_pixels(pictures) -> None:  # type: ignore[no-untyped-def]
+    rng = np.random.default_rng(5)
+    for picture in pictures:
+        assert converts_by_region(picture)
+        whole = picture_bgr(picture)
+        for region in _random_regions(rng, picture.height, picture.width, 5):
+            got = picture_bgr_region(picture, region)
+            assert isinstance(got, RegionFrame)
+            assert contains(got.region, region) and got.pixels.shape == whole.shape
+            t, lf, b, r = got.region
+            np.testing.assert_array_equal(got.pixels[t:b, lf:r], whole[t:b, lf:r])
+        assert isinstance(picture_bgr_region(picture, None), np.ndarray)
+
+
+def test_pictures_of_other_colours_are_converted_whole_by_ffmpeg(pictures) -> None:  # type: ignore[no-untyped-def]
+    full_range = pictures[0].reformat(format="yuvj420p")
+    assert not converts_by_region(full_range)
+    got = picture_bgr_region(full_range, (0, 0, 16, 16))
+    np.testing.assert_array_equal(got, full_range.to_ndarray(format="bgr24"))
