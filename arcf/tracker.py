@@ -225,6 +225,11 @@ _SIZINGS = {"filter_max_area": _bacf_sizing, "sample_area": _eco_sizing}
 #: Pixels added around :meth:`ARCFTracker.read_region`'s windows: the sampling pyramid
 #: extends its cut to whole blocks of up to 2^4 pixels.
 READ_MARGIN = 16
+#: How far the target may move in one frame, as a share of the detection window, for the
+#: windows cut after detection to lie in :meth:`ARCFTracker.read_region` (a quarter: about
+#: the target's own size for ARCF-H's and BACF's windows of five target sides; further, the
+#: update asks for the whole frame).
+READ_STEP = 0.25
 
 
 class ARCFTracker:
@@ -245,6 +250,8 @@ class ARCFTracker:
         self._monitor = TrackMonitor(params.state)
         #: the last frame's strength: PSR x peak over their recent trusted medians (NaN before)
         self.strength = math.nan
+        #: during an update on a RegionFrame: the frame, for its whole picture if needed
+        self._partial: RegionFrame | None = None
         #: Paper formulation (or γ = 0, or the release's target made conjugate symmetric):
         #: filters are real in space, half spectra suffice.
         self._hermitian = (
@@ -336,18 +343,24 @@ class ARCFTracker:
         asked for when the track goes lost and searches, or when the region falls short)."""
         if self._state is None:
             raise NotInitializedError("call init(frame, box) before update(frame)")
-        state, layout, policy = self.state, self.layout, self.params.state
-        partial: RegionFrame | None = None
+        self._partial = None
         if isinstance(frame, RegionFrame):
             needed = self.read_region()
             if needed is not None and contains(frame.region, needed):
-                partial, frame = frame, frame.pixels
+                self._partial, frame = frame, frame.pixels
             else:
                 frame = frame.whole()
-        image = self._frame_for_update(frame)
+        try:
+            return self._update(self._frame_for_update(frame))
+        finally:
+            self._partial = None
+
+    def _update(self, image: np.ndarray) -> TrackResult:
+        """The update's steps on the frame (``image``: (H, W, C) uint8)."""
+        state, layout, policy = self.state, self.layout, self.params.state
         state.frame_index += 1
         was_lost = self._monitor.state is TrackState.LOST
-        response, peak = self._detect(image)
+        response, peak, image = self._detect(image)
         frob, spectral, target_f = self._aberrance(response)
         psr = peak_to_sidelobe(response, layout.psr_radius)
         verdict = self._monitor.observe(peak, psr, spectral)
@@ -360,8 +373,9 @@ class ARCFTracker:
             # on what is not the target means nothing
             if state.tracked is not None:
                 state.scale_factor = state.tracked[1]
-            if partial is not None:  # the search reads the whole frame
-                image = self._frame_for_update(partial.whole())
+            if self._partial is not None:  # the search reads the whole frame
+                image = self._frame_for_update(self._partial.whole())
+                self._partial = None
             found = self._reacquire(image, verdict.strength)
             if found is not None:
                 read, state_now, jumped = found, TrackState.TRACKING, True
@@ -397,34 +411,50 @@ class ARCFTracker:
         frame, or None for the whole frame (before ``init``; while a lost track searches it).
 
         A bound, not a trace: the detection windows around the rounded position at the
-        largest searched scale; the peak moves the target at most half the response map (plus
-        a cell) and the scale grows at most by the largest factor searched (the joint search's
-        or DSST's); every window cut after detection (the training sample, DSST's samples, the
-        look and the kept template) lies around the new position at the new scale; plus
-        :data:`READ_MARGIN` for the pyramid's whole blocks. tests/arcf/test_region.py checks
-        that frames undefined outside it give every preset's results bit for bit."""
+        largest searched scale, and every window cut after detection (the training sample,
+        DSST's samples, the look, the kept template) for a target that moves up to
+        :data:`READ_STEP` of the detection window and grows by the largest factor searched
+        (the joint search's or DSST's); plus :data:`READ_MARGIN`. A target that moves further
+        makes the update ask a :class:`~arcf.region.RegionFrame` for its whole picture
+        (``_after_detection``). tests/arcf/test_region.py checks that frames undefined outside
+        the region give every preset's results bit for bit."""
         if self._state is None:
             return None
         if self.params.state.reacquire and self._monitor.state is TrackState.LOST:
             return None
         layout, state = self.layout, self.state
         r, c = self._sample_pos()
-        scale = state.scale_factor
-        searched = float(np.max(layout.scale_factors))
-        grow = searched
-        extent = float(layout.sample_sz)  # the largest window after detection, working px
+        detect = layout.sample_sz * state.scale_factor * float(np.max(layout.scale_factors))
+        half = max(detect / 2, READ_STEP * detect + self._after_half()) + READ_MARGIN
+        return clip_region(r - 1 - half, c - 1 - half, r + half, c + half, layout.image_hw)
+
+    def _after_half(self) -> float:
+        """Half the side of the largest window cut after detection (source pixels), at the
+        largest scale the detection can reach from the current one."""
+        layout, state = self.layout, self.state
+        grow = float(np.max(layout.scale_factors))
+        extent = float(layout.sample_sz)  # working pixels
         if state.scale_filter is not None:
             dsst = float(np.max(state.scale_filter.factors))
             grow = max(grow, dsst)
             extent = max(extent, max(layout.target_size) * dsst)
-        after = extent * min(scale * grow, layout.max_scale)
-        half = []
-        for axis in (0, 1):
-            reach = (layout.grid[axis] / 2 + 1) * layout.cell_px[axis] * scale * searched
-            detect = layout.sample_sz * scale * searched / 2
-            half.append(max(detect, reach + after / 2) + READ_MARGIN)
-        return clip_region(r - 1 - half[0], c - 1 - half[1], r - 1 + half[0] + 1,
-                           c - 1 + half[1] + 1, layout.image_hw)
+        return extent * min(state.scale_factor * grow, layout.max_scale) / 2
+
+    def _after_detection(self, image: np.ndarray) -> np.ndarray:
+        """The frame the rest of the update reads, the target now at its detected place: a
+        region frame's whole picture when that place lies beyond what :meth:`read_region`
+        allowed for."""
+        partial = self._partial
+        if partial is None:
+            return image
+        r, c = self.state.pos
+        half = self._after_half() + READ_MARGIN
+        needed = clip_region(r - 1 - half, c - 1 - half, r + half, c + half,
+                             self.layout.image_hw)
+        if contains(partial.region, needed):
+            return image
+        self._partial = None
+        return self._frame_for_update(partial.whole())
 
     def steer(self, box: Box) -> None:
         """Search around ``box`` on the next ``update``, at its size: a companion tracker's box
@@ -573,8 +603,9 @@ class ARCFTracker:
         return layout, sizing, scale_filter
 
     # ------------------------------------------------------------------ the three steps
-    def _detect(self, image: np.ndarray) -> tuple[np.ndarray, float]:
-        """Step 1: locate the target; updates position and scale. Returns (map, peak value)."""
+    def _detect(self, image: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
+        """Step 1: locate the target; updates position and scale. Returns (map, peak value,
+        the frame the rest of the update reads: ``_after_detection``)."""
         p, layout, state = self.params, self.layout, self.state
         sample_pos = self._sample_pos()
         patches = self._patches(image, sample_pos, layout.scale_factors)
@@ -607,12 +638,13 @@ class ARCFTracker:
                 (new_pos[0] - sample_pos[0]) / px_per_cell[0],
                 (new_pos[1] - sample_pos[1]) / px_per_cell[1],
             )
+        image = self._after_detection(image)
         if state.scale_filter is not None:
             factor = state.scale_filter.estimate(image, state.pos, layout.target_size,
                                                  state.scale_factor)
         state.scale_factor = float(np.clip(state.scale_factor * factor, layout.min_scale,
                                            layout.max_scale))
-        return response[sind], peak
+        return response[sind], peak, image
 
     def _full_spectrum(self, rf: np.ndarray, response: np.ndarray) -> np.ndarray:
         """The responses' full spectra, (S, H, W), as Newton's peak refinement reads them."""

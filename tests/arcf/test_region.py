@@ -19,6 +19,7 @@ import arcf
 from arcf.data import default_colornames_path
 from arcf.eval.datasets import load_dataset
 from arcf.region import RegionFrame, area, clip_region, contains, cover
+from arcf.state import TrackState
 
 pytestmark = pytest.mark.slow
 
@@ -100,6 +101,33 @@ def test_a_region_that_falls_short_gets_the_whole_frame(sequences: dict) -> None
         given = RegionFrame(pixels, short, lambda frame=frame: asked.append(1) or frame)
         assert same(whole.update(frame), partial.update(given))
     assert len(asked) == 5
+
+
+@pytest.mark.parametrize("preset", ["arcf-h", "arcf-hc"])
+def test_a_target_that_moves_further_than_the_region_allows_gets_the_whole_frame(
+        preset: str, sequences: dict, monkeypatch: pytest.MonkeyPatch) -> None:
+    # regions made for a target that barely moves: wakeboard7's moves further on most frames
+    monkeypatch.setattr(arcf.tracker, "READ_STEP", 0.01)
+    frames, box = sequences["wakeboard7"]
+    kw = {"colornames_path": default_colornames_path()} if preset == "arcf-hc" else {}
+    whole, partial = arcf.create_tracker(preset, **kw), arcf.create_tracker(preset, **kw)
+    whole.init(frames[0], box)
+    partial.init(frames[0], box)
+    rng = np.random.default_rng(1)
+    widened = 0
+    for k, frame in enumerate(frames[1:20], 1):
+        region = partial.read_region()
+        if region is None:
+            continue
+        t, lf, b, r = region
+        pixels = rng.integers(0, 256, frame.shape, dtype=np.uint8)
+        pixels[t:b, lf:r] = frame[t:b, lf:r]
+        asked = []
+        given = RegionFrame(pixels, region, lambda frame=frame: asked.append(1) or frame)
+        a, b_ = whole.update(frame), partial.update(given)
+        assert same(a, b_), f"frame {k}"
+        widened += bool(asked) and a.state is TrackState.TRACKING
+    assert widened >= 5
 
 
 @pytest.mark.parametrize("preset", ["nanotrack", "arcf-nano"])
