@@ -122,8 +122,9 @@ def test_a_target_that_moves_further_than_the_region_allows_gets_the_whole_frame
         t, lf, b, r = region
         pixels = rng.integers(0, 256, frame.shape, dtype=np.uint8)
         pixels[t:b, lf:r] = frame[t:b, lf:r]
-        asked = []
-        given = RegionFrame(pixels, region, lambda frame=frame: asked.append(1) or frame)
+        asked: list[int] = []
+        given = RegionFrame(pixels, region,
+                            lambda frame=frame, asked=asked: asked.append(1) or frame)
         a, b_ = whole.update(frame), partial.update(given)
         assert same(a, b_), f"frame {k}"
         widened += bool(asked) and a.state is TrackState.TRACKING
