@@ -23,6 +23,7 @@ Writes ``capacity.json`` and prints Markdown tables (for docs/benchmarks.md).
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import os
 import sys
@@ -47,6 +48,9 @@ def main() -> int:
     ap.add_argument("--fps", default="10,30")
     ap.add_argument("--dataset", default="uav123_10fps")
     ap.add_argument("--sequences", default="", help="comma-separated (default: all local)")
+    ap.add_argument("--encodings", default="jpeg",
+                    help="comma-separated: jpeg (the datasets' files) and / or h264 (the "
+                         "same frames as a camera's video, decoding included); capacity only")
     ap.add_argument("--duration", type=float, default=15.0, help="seconds per load level")
     ap.add_argument("--max-streams", type=int, default=10)
     ap.add_argument("--p99-ms", type=float, default=100.0)
@@ -78,33 +82,34 @@ def main() -> int:
     t_start = time.monotonic()
     try:
         if not args.skip_capacity:
-            for preset in presets:
-                for fps in rates:
-                    for seq in seqs:
-                        levels = []
-                        for n in range(1, args.max_streams + 1):
-                            r = run_load([endpoint], [seq], streams=n, preset=preset, fps=fps,
-                                         duration=args.duration, loop=True,
-                                         metrics_url=metrics_url, service_pid=proc.pid,
-                                         offline=False, reference_seconds=0, progress=False)
-                            r["passes"] = passes(r, args.p99_ms)
-                            keep = ("sequence", "frames_sent", "results", "dropped_by_service",
-                                    "latency_ms")
-                            r["per_stream"] = [{k: s[k] for k in keep} for s in r["per_stream"]]
-                            levels.append(r)
-                            print(f"{preset} {fps:g} fps {seq.name}: {n} streams, "
-                                  f"p99 {r['latency_ms']['p99']:.0f} ms, "
-                                  f"dropped {r['dropped_by_service']}, "
-                                  f"{'pass' if r['passes'] else 'FAIL'}", file=sys.stderr)
-                            if not r["passes"]:
-                                break
-                        ok = [r["streams"] for r in levels if r["passes"]]
-                        out["capacity"].append({"preset": preset, "fps": fps,
-                                                "sequence": seq.name,
-                                                "size": image_size(seq),
-                                                "capacity": max(ok) if ok else 0,
-                                                "levels": levels})
-                        Path(args.out).write_text(json.dumps(out, indent=1, default=float))
+            for encoding, preset, fps, seq in itertools.product(
+                    args.encodings.split(","), presets, rates, seqs):
+                levels = []
+                for n in range(1, args.max_streams + 1):
+                    r = run_load([endpoint], [seq], streams=n, preset=preset, fps=fps,
+                                 duration=args.duration, loop=True,
+                                 metrics_url=metrics_url, service_pid=proc.pid,
+                                 offline=False, reference_seconds=0, progress=False,
+                                 encoding=encoding)
+                    r["passes"] = passes(r, args.p99_ms)
+                    keep = ("sequence", "frames_sent", "results", "dropped_by_service",
+                            "latency_ms")
+                    r["per_stream"] = [{k: s[k] for k in keep} for s in r["per_stream"]]
+                    levels.append(r)
+                    print(f"{encoding} {preset} {fps:g} fps {seq.name}: {n} streams, "
+                          f"p99 {r['latency_ms']['p99']:.0f} ms, "
+                          f"dropped {r['dropped_by_service']}, "
+                          f"{'pass' if r['passes'] else 'FAIL'}", file=sys.stderr)
+                    if not r["passes"]:
+                        break
+                ok = [r["streams"] for r in levels if r["passes"]]
+                out["capacity"].append({"encoding": encoding, "preset": preset,
+                                        "fps": fps,
+                                        "sequence": seq.name,
+                                        "size": image_size(seq),
+                                        "capacity": max(ok) if ok else 0,
+                                        "levels": levels})
+                Path(args.out).write_text(json.dumps(out, indent=1, default=float))
         if not args.skip_saturation:
             sat = [s for s in seqs if s.name in args.saturation_sequences.split(",")]
             for preset in presets:
@@ -131,31 +136,32 @@ def markdown(out: dict[str, Any]) -> str:
     m = out["machine"]
     lines = [f"Machine: nproc {m['nproc']}, {m['cpu']}.", ""]
     if out["capacity"]:
-        rates = sorted({c["fps"] for c in out["capacity"]})
-        presets = list(dict.fromkeys(c["preset"] for c in out["capacity"]))
+        cols = list(dict.fromkeys((c.get("encoding", "jpeg"), c["preset"], c["fps"])
+                                  for c in out["capacity"]))
         seqs = list(dict.fromkeys(c["sequence"] for c in out["capacity"]))
-        head = " | ".join(f"{p}, {f:g} fps" for p in presets for f in rates)
-        lines += [f"| sequence | {head} |", "| --- |" + " --- |" * (len(presets) * len(rates))]
-        by = {(c["preset"], c["fps"], c["sequence"]): c for c in out["capacity"]}
+        head = " | ".join(f"{p}, {f:g} fps, {e.upper()}" for e, p, f in cols)
+        lines += [f"| sequence | {head} |", "| --- |" + " --- |" * len(cols)]
+        by = {(c.get("encoding", "jpeg"), c["preset"], c["fps"], c["sequence"]): c
+              for c in out["capacity"]}
         for s in seqs:
             cells = []
-            for p in presets:
-                for f in rates:
-                    c = by.get((p, f, s))
-                    if c is None:
-                        cells.append("")
-                        continue
-                    best = next((r for r in c["levels"] if r["streams"] == c["capacity"]), None)
-                    p99 = f" (p99 {best['latency_ms']['p99']:.0f} ms)" if best else ""
-                    cells.append(f"{c['capacity']}{p99}")
+            for col in cols:
+                c = by.get((*col, s))
+                if c is None:
+                    cells.append("")
+                    continue
+                best = next((r for r in c["levels"] if r["streams"] == c["capacity"]), None)
+                p99 = f" (p99 {best['latency_ms']['p99']:.0f} ms)" if best else ""
+                cells.append(f"{c['capacity']}{p99}")
             lines.append(f"| {s} | " + " | ".join(cells) + " |")
-        lines += ["", "| preset | fps | sequence | streams | dropped | p50 / p99 (ms) | "
-                  "generator / service CPU (cores) | pass |",
-                  "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+        lines += ["", "| encoding | preset | fps | sequence | streams | dropped | p50 / p99 (ms) "
+                  "| generator / service CPU (cores) | pass |",
+                  "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
         for c in out["capacity"]:
             for r in c["levels"]:
                 lat, cpu = r["latency_ms"], r["cpu"]
-                lines.append(f"| {c['preset']} | {c['fps']:g} | {c['sequence']} | {r['streams']} "
+                lines.append(f"| {c.get('encoding', 'jpeg')} | {c['preset']} | {c['fps']:g} "
+                             f"| {c['sequence']} | {r['streams']} "
                              f"| {r['dropped_by_service']} | {lat['p50']:.0f} / {lat['p99']:.0f} "
                              f"| {cpu['generator_cores']:.2f} / {cpu.get('service_cores', 0):.2f} "
                              f"| {'yes' if r['passes'] else 'no'} |")
