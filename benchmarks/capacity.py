@@ -60,6 +60,8 @@ def main() -> int:
                     help="frames of each sequence replayed (looped) at saturation, by the "
                          "service and by the library reference alike")
     ap.add_argument("--reference-seconds", type=float, default=30.0)
+    ap.add_argument("--workers", type=int, default=0,
+                    help="the service's worker processes (default: one per CPU)")
     ap.add_argument("--skip-capacity", action="store_true")
     ap.add_argument("--skip-saturation", action="store_true")
     ap.add_argument("--out", default="capacity.json")
@@ -75,9 +77,9 @@ def main() -> int:
     ncpu = os.cpu_count() or 1
     # closed-loop streams at saturation run faster than the per-stream rate limit (60 fps by
     # default: a station flooding the others): lifted here, where throughput is the question
-    svc = ServiceProcess("--max-stream-fps", "10000", workers=ncpu, quiet=False)
+    svc = ServiceProcess("--max-stream-fps", "10000", workers=args.workers or ncpu, quiet=False)
     proc, endpoint, metrics_url = svc.proc, svc.endpoint, svc.metrics_url
-    out: dict[str, Any] = {"machine": machine(),
+    out: dict[str, Any] = {"machine": machine(), "workers": args.workers or ncpu,
                            "capacity": [], "saturation": []}
     t_start = time.monotonic()
     try:
@@ -134,7 +136,8 @@ def main() -> int:
 
 def markdown(out: dict[str, Any]) -> str:
     m = out["machine"]
-    lines = [f"Machine: nproc {m['nproc']}, {m['cpu']}.", ""]
+    workers = out.get("workers", m["nproc"])
+    lines = [f"Machine: nproc {m['nproc']}, {m['cpu']}; {workers} workers.", ""]
     if out["capacity"]:
         cols = list(dict.fromkeys((c.get("encoding", "jpeg"), c["preset"], c["fps"])
                                   for c in out["capacity"]))

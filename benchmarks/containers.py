@@ -121,7 +121,8 @@ def main() -> int:
     print(f"machine: {os.cpu_count()} cores; prepare (base + wheelhouse, warm): {prepare_s:.0f} s;"
           f" up to both healthy: {up_s:.0f} s\n")
     print("| image | size (MB) |\n| --- | --- |")
-    for tag in ("arcf-base:bookworm", "arcf-service:bench", "arcf-prometheus:bench"):
+    for tag in ("arcf-base:bookworm", "arcf-build:bookworm", "arcf-service:bench",
+                "arcf-prometheus:bench"):
         print(f"| {tag} | {image_mb(tag):.0f} |")
     print("\n| build | seconds |\n| --- | --- |")
     for name, secs in builds.items():

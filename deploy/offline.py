@@ -5,7 +5,10 @@ Two inputs replace the network during ``docker build``:
 
 * a **base image** built from Debian packages with ``debootstrap --variant=minbase`` and
   ``docker import`` (Debian bookworm: Python 3.11, the version the image is made for), where
-  ``python:3.11-slim-bookworm`` cannot be pulled;
+  ``python:3.11-slim-bookworm`` cannot be pulled, and beside it a **build image**, the same
+  plus a C compiler and libjpeg-turbo's and Python's headers (``arcf-build:bookworm``, for
+  the Dockerfile's build stage, which compiles the partial JPEG decoder), where
+  ``python:3.11-bookworm`` cannot be pulled;
 * a **wheelhouse** (``deploy/wheelhouse/``) with every Python package the image installs, for
   the image's Python and CPU whatever the host runs, so that ``pip install --no-index`` inside
   the build needs no index.
@@ -15,7 +18,8 @@ It also fills ``deploy/models/`` with the Siamese presets' network files (``nano
 image carries them; the image's build checks each file's size and SHA-256 (``arcf models``).
 
 Run on a machine that reaches PyPI and a Debian mirror (as root, for debootstrap); carry the
-wheelhouse and ``docker save arcf-base:bookworm`` to the site if it is elsewhere. Then::
+wheelhouse and ``docker save arcf-base:bookworm arcf-build:bookworm`` to the site if it is
+elsewhere. Then::
 
     python3 deploy/offline.py                    # base image (if missing), wheelhouse, models
     docker-compose -f deploy/compose.yaml -f deploy/compose.local.yaml -p arcf up -d --build
@@ -41,10 +45,14 @@ ROOT = Path(__file__).resolve().parent.parent
 WHEELHOUSE = ROOT / "deploy" / "wheelhouse"
 MODELS = ROOT / "deploy" / "models"
 BASE_TAG = "arcf-base:bookworm"
+BUILD_TAG = "arcf-build:bookworm"
 #: Debian bookworm's Python, which the Dockerfile's default base (python:3.11-slim) matches.
 PYTHON_VERSION = "3.11"
 #: python3-venv brings ensurepip (the image makes a virtualenv); passwd is in minbase already.
 BASE_PACKAGES = ("python3", "python3-venv", "ca-certificates")
+#: The build image's additions: what compiles service/_jpegregion.c (the image's runtime needs
+#: none of it: the build stage copies libjpeg beside the module).
+BUILD_PACKAGES = ("gcc", "libc6-dev", "libjpeg62-turbo-dev", "python3-dev")
 IMAGE_PATH = "/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin"
 #: manylinux tags the image's glibc (2.36) accepts, newest first, per CPU.
 PLATFORMS = {
@@ -125,9 +133,10 @@ def image_exists(tag: str) -> bool:
     return subprocess.run(["docker", "image", "inspect", tag], capture_output=True).returncode == 0
 
 
-def build_base(tag: str, mirror: str, suite: str, force: bool) -> None:
+def build_base(tag: str, mirror: str, suite: str, force: bool,
+               packages: tuple[str, ...] = BASE_PACKAGES) -> None:
     if not force and image_exists(tag):
-        log(f"base image present: {tag}")
+        log(f"image present: {tag}")
         return
     if shutil.which("debootstrap") is None:
         sys.exit("debootstrap not found: apt-get install debootstrap")
@@ -136,7 +145,7 @@ def build_base(tag: str, mirror: str, suite: str, force: bool) -> None:
     t0 = time.monotonic()
     with tempfile.TemporaryDirectory(prefix="arcf-rootfs-", dir="/var/tmp") as tmp:
         rootfs = Path(tmp) / "rootfs"
-        subprocess.run(["debootstrap", "--variant=minbase", f"--include={','.join(BASE_PACKAGES)}",
+        subprocess.run(["debootstrap", "--variant=minbase", f"--include={','.join(packages)}",
                         suite, str(rootfs), mirror], check=True, stdout=subprocess.DEVNULL)
         # what an image does not need: package lists and caches, documentation
         for sub in ("var/lib/apt/lists", "var/cache/apt", "usr/share/doc", "usr/share/man",
@@ -153,13 +162,13 @@ def build_base(tag: str, mirror: str, suite: str, force: bool) -> None:
                         "--change", f"ENV PATH={IMAGE_PATH}",
                         "--change", 'CMD ["/bin/bash"]',
                         "--message", f"debootstrap --variant=minbase {suite} + "
-                                     f"{' '.join(BASE_PACKAGES)}",
+                                     f"{' '.join(packages)}",
                         "-", tag], stdin=tar.stdout, check=True, stdout=subprocess.DEVNULL)
         assert tar.stdout is not None
         tar.stdout.close()
         if tar.wait() != 0:
             sys.exit("tar of the root filesystem failed")
-    log(f"base image {tag} built in {time.monotonic() - t0:.0f} s")
+    log(f"image {tag} built in {time.monotonic() - t0:.0f} s")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -167,6 +176,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("steps", nargs="*", metavar="{base,wheels,models}",
                     help="what to prepare (default: all three)")
     ap.add_argument("--base-tag", default=BASE_TAG)
+    ap.add_argument("--build-tag", default=BUILD_TAG)
     ap.add_argument("--mirror", default="http://deb.debian.org/debian")
     ap.add_argument("--suite", default="bookworm")
     ap.add_argument("--wheelhouse", type=Path, default=WHEELHOUSE)
@@ -185,6 +195,8 @@ def main(argv: list[str] | None = None) -> int:
         copy_models(args.models_from or models_source(), MODELS)
     if "base" in steps:
         build_base(args.base_tag, args.mirror, args.suite, args.force)
+        build_base(args.build_tag, args.mirror, args.suite, args.force,
+                   BASE_PACKAGES + BUILD_PACKAGES)
     return 0
 
 
