@@ -59,8 +59,8 @@ def _convert(y: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 def picture_bgr(picture: av.VideoFrame) -> np.ndarray:
     """The whole picture as (H, W, 3) uint8 BGR."""
-    if converts_by_region(picture):
-        return _convert(*_planes(picture))
+    if converts_by_region(picture):  # PyAV packs the planes as OpenCV's I420 layout
+        return cv2.cvtColor(picture.to_ndarray(), cv2.COLOR_YUV2BGR_I420)
     return picture.to_ndarray(format="bgr24")
 
 
