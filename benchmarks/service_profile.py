@@ -10,6 +10,8 @@ process (decode + track, one thread). Per frame, in CPU milliseconds:
 - the main process: the embedded router forwarding every frame and result, the control plane
   and the metrics endpoint (with an external router, that part moves to the router);
 - the overhead: everything but the track stage, worker and main process together;
+- the queue: how long a frame waited in its stream's queue before the worker took it
+  (``arcf_queue_wait_seconds``, wall time: what latency, not CPU, a frame spends there);
 - the library alone, back to back and paced at the stream's rate (a worker that waits for
   its next frame finds its caches cold: the same tracking costs more CPU than back to back).
 
@@ -31,6 +33,7 @@ from typing import Any
 ROOT = Path(__file__).resolve().parent.parent
 MAIN = "main process (control, metrics; the router, if embedded)"
 ROUTER = "external router"
+QUEUE = "queue: a frame's wait before its worker takes it (wall ms, not CPU)"
 
 
 def library_alone(clip: Any, preset: str, frames: int, pace_s: float = 0.0) -> dict[str, float]:
@@ -80,8 +83,14 @@ def service_run(clip: Any, preset: str, frames: int, fps: float,
     from arcf.loadtools.procs import RouterProcess, ServiceProcess
     from arcf.loadtools.system import cpu_seconds
     from arcf.service.client import TrackingClient
-    from arcf.service.scrape import by_label, fetch
+    from arcf.service.scrape import by_label, fetch, totals
     from arcf.service.stages import STAGES
+
+    def waited() -> tuple[float, float]:
+        assert svc.metrics_url
+        t = totals(fetch(svc.metrics_url))
+        return (t.get("arcf_queue_wait_seconds_sum", 0.0),
+                t.get("arcf_queue_wait_seconds_count", 0.0))
 
     with ExitStack() as stack:
         router = stack.enter_context(RouterProcess()) if external_router else None
@@ -98,6 +107,7 @@ def service_run(clip: Any, preset: str, frames: int, fps: float,
             assert svc.metrics_url
             stages0 = by_label(fetch(svc.metrics_url), "arcf_stage_cpu_seconds_total", "stage")
             main0, worker0, router0 = cpu_seconds(svc.proc.pid), cpu_seconds(worker), router_cpu()
+            wait0 = waited()
             fleet.release()
             if not fleet.wait_published(timeout=10 + 3 * frames / fps):
                 raise SystemExit("not every frame was published")
@@ -113,6 +123,7 @@ def service_run(clip: Any, preset: str, frames: int, fps: float,
                     break
                 stages1 = again
             answered = len({r.frame_seq for r in stream.record.received})
+            wait1 = waited()
     if answered < frames:
         print(f"# {frames - answered} frames without a result", file=sys.stderr)
     per = 1e3 / answered
@@ -121,6 +132,7 @@ def service_run(clip: Any, preset: str, frames: int, fps: float,
     out[MAIN] = per * (main1 - main0)
     out[ROUTER] = per * (router1 - router0)
     out["answered"] = answered
+    out[QUEUE] = 1e3 * (wait1[0] - wait0[0]) / max(wait1[1] - wait0[1], 1.0)
     return out
 
 
@@ -172,6 +184,7 @@ def main(argv: list[str] | None = None) -> int:
     print("| **service, all** | " + " | ".join(f"**{total[e]:.2f}**" for e in encs) + " |")
     print("| **overhead (all but track)** | " + " | ".join(
         f"**{total[e] - columns[e]['track']:.2f}**" for e in encs) + " |")
+    print(f"| {QUEUE} | " + " | ".join(f"{columns[e][QUEUE]:.2f}" for e in encs) + " |")
     for key, label in (("decode", "back to back: decode"), ("track", "back to back: track"),
                        ("paced decode", f"paced at {args.fps:g} fps: decode"),
                        ("paced track", f"paced at {args.fps:g} fps: track")):

@@ -19,6 +19,8 @@ END_TO_END = Histogram(
     buckets=LATENCY_BUCKETS,
 )
 DECODE = Histogram("arcf_decode_seconds", "Image decoding time per frame", buckets=STEP_BUCKETS)
+QUEUE_WAIT = Histogram("arcf_queue_wait_seconds", "Time a frame waited in its stream's queue "
+                       "before its worker took it (wall time)", buckets=STEP_BUCKETS)
 TRACK = Histogram("arcf_track_seconds", "Tracker time per session and frame", buckets=STEP_BUCKETS)
 FRAMES_RECEIVED = Counter("arcf_frames_received_total", "Frames taken from the network by workers")
 FRAMES_PROCESSED = Counter("arcf_frames_processed_total", "Frames decoded and tracked")

@@ -175,7 +175,6 @@ class _Stream:
     trimmed_before: int = 0
 
 
-
 def _read_region(stream: _Stream) -> Region | None:
     """Where the stream's trackers read the next frame (None: the whole frame, as for a
     session about to start on it or a track searching for its target)."""
@@ -640,7 +639,9 @@ class Worker:
         the newest picture is tracked: overload drops tracking work, never decoder state.
         Decoding that backlog takes at most ``DECODE_TURN_S`` of this turn: the rest waits
         for the stream's next turn, after every other stream's (its picture is held)."""
-        stream.window_wait_s = max(stream.window_wait_s, (time.time_ns() - received_ns) / 1e9)
+        waited = (time.time_ns() - received_ns) / 1e9
+        self.metrics.QUEUE_WAIT.observe(max(waited, 0.0))
+        stream.window_wait_s = max(stream.window_wait_s, waited)
         stream.window_turns += 1
         t0, c0 = time.perf_counter(), time.thread_time()
         picture = self._ingest(stream, payload, received_ns, source, unit_seq)

@@ -222,6 +222,7 @@ def test_metrics_count_what_was_sent(service, frames) -> None:
     before_results = service.metric("arcf_results_published_total")
     before_frames = service.metric("arcf_frames_processed_total")
     before_decoded = by_label(fetch(service.metrics_url), "arcf_frames_decoded_total", "extent")
+    before_waits = service.metric("arcf_queue_wait_seconds_count")
     with TrackingClient(connect=[service.endpoint], frame_congestion="block") as client, \
             _lockstep(client, {"count": (_clip(seq, data[:10]), ["bacf"])}) as fleet:
         got = _got(fleet, "count")
@@ -233,6 +234,8 @@ def test_metrics_count_what_was_sent(service, frames) -> None:
     assert service.metric("arcf_results_published_total") - before_results == 10
     assert service.metric("arcf_frames_processed_total") - before_frames == 10
     assert service.metric("arcf_end_to_end_latency_seconds_count") >= 10
+    # every frame's wait in its stream's queue, once
+    assert service.metric("arcf_queue_wait_seconds_count") - before_waits == 10
     # the first frame decoded whole (the session starts on it), the others only where the
     # tracker reads them (a small target: bacf's windows cover a fraction of the frame)
     decoded = by_label(fetch(service.metrics_url), "arcf_frames_decoded_total", "extent")
