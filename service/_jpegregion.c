@@ -48,6 +48,14 @@ static void on_message(j_common_ptr cinfo, int level) {
     }
 }
 
+/* libjpeg's errors longjmp back to the caller's setjmp; its warnings are remembered. */
+static void route_errors(struct jpeg_decompress_struct *cinfo, struct region_error *err) {
+    memset(err, 0, sizeof *err);
+    cinfo->err = jpeg_std_error(&err->pub);
+    err->pub.error_exit = on_error;
+    err->pub.emit_message = on_message;
+}
+
 typedef struct {
     int top, left, bottom, right;
     const char *failure; /* static text, or NULL */
@@ -132,10 +140,7 @@ static PyObject *decode_region(PyObject *self, PyObject *args) {
         return NULL;
     struct jpeg_decompress_struct cinfo;
     struct region_error err;
-    memset(&err, 0, sizeof err);
-    cinfo.err = jpeg_std_error(&err.pub);
-    err.pub.error_exit = on_error;
-    err.pub.emit_message = on_message;
+    route_errors(&cinfo, &err);
     int rc;
     Py_BEGIN_ALLOW_THREADS
     rc = decode(&cinfo, &err, (const unsigned char *)data.buf, (size_t)data.len,
@@ -155,10 +160,7 @@ static PyObject *header(PyObject *self, PyObject *args) {
     if (!PyArg_ParseTuple(args, "y*", &data)) return NULL;
     struct jpeg_decompress_struct cinfo;
     struct region_error err;
-    memset(&err, 0, sizeof err);
-    cinfo.err = jpeg_std_error(&err.pub);
-    err.pub.error_exit = on_error;
-    err.pub.emit_message = on_message;
+    route_errors(&cinfo, &err);
     if (setjmp(err.jump)) {
         jpeg_destroy_decompress(&cinfo);
         PyBuffer_Release(&data);
