@@ -57,6 +57,7 @@ def main() -> int:
     ap.add_argument("--frames", type=int, default=100)
     args = ap.parse_args()
     cv2.setNumThreads(1)
+    arcf.warm_up()  # the kernels compiled before timing, as a worker has them when it starts
     svc = ServiceProcess(workers=os.cpu_count() or 1, metrics=False, quiet=False,
                          env={"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"})
     print(f"# {svc.ready_line}")

@@ -187,6 +187,12 @@ def _read_region(stream: _Stream) -> Region | None:
     return cover(regions)
 
 
+def _count_extent(metrics: Any, image: np.ndarray | RegionFrame) -> None:
+    """Count a picture decoded for tracking by how much of it was decoded."""
+    extent = "region" if isinstance(image, RegionFrame) else "whole"
+    metrics.FRAMES_DECODED.labels(extent=extent).inc()
+
+
 class Worker:
     def __init__(self, index: int, settings: Any, commands: Any, responses: Any,
                  stop: Any) -> None:
@@ -698,8 +704,7 @@ class Worker:
         m.DECODE.observe(decode_s)
         clock.since("metrics", c0)
         if image is not None:
-            m.FRAMES_DECODED.labels(
-                extent="region" if isinstance(image, RegionFrame) else "whole").inc()
+            _count_extent(m, image)
             return _Picture(frame.seq, frame.capture_ts_ns, received_ns, decode_s, image)
         code, text = problem or (ErrorCode.DECODE_ERROR, f"cannot decode {frame.encoding} frame")
         self._error(stream, code, text, frame.seq)
@@ -814,8 +819,7 @@ class Worker:
         if converts:
             c0 = clock.since("convert", c0)
             if image is not None:
-                m.FRAMES_DECODED.labels(
-                    extent="region" if isinstance(image, RegionFrame) else "whole").inc()
+                _count_extent(m, image)
             clock.since("metrics", c0)
         decode_s, received_ns = picture.decode_s, picture.received_ns
         code, text = picture.code, picture.text

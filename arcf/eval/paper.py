@@ -137,7 +137,8 @@ def build_report(
     lines += ["## 2. Our trackers on the sequences whose frames are here", "",
               "Every sequence under the data root: " + "; ".join(
                   f"{TITLES[ds]}: {', '.join(n)}" for ds, n in local.items()) + ". The published "
-              "trackers are scored on exactly the same sequences. Our FPS: this machine (2 cores), "
+              "trackers are scored on exactly the same sequences. Our FPS: this machine "
+              f"({os.cpu_count()} cores), "
               "single-threaded workers, tracker time only.", ""]
     for spec in configs:
         run_spec = TrackerSpec(spec.preset, spec.overrides, _folder_label(spec))
