@@ -9,7 +9,7 @@ received. Each link kind (TCP, a Unix socket) runs with Zenoh's shared memory on
 the publisher's large messages go through /dev/shm, on-host only) and off (what a frame from
 another host, or a container without a shared /dev/shm, costs).
 
-    python benchmarks/zenoh_hop.py                         # about 1 minute
+    python benchmarks/zenoh_hop.py                         # about 2 minutes
     python benchmarks/zenoh_hop.py --sizes 100000 --messages 3000 --rate 300
 """
 
