@@ -132,7 +132,8 @@ def main() -> int:
 
     host = machine()
     print(f"`python benchmarks/arithmetic_sensitivity.py {' '.join(sys.argv[1:])}`, "
-          f"{time.strftime('%Y-%m-%d')}, {host['cpu']}, {host['nproc']} cores\n")
+          f"{time.strftime('%Y-%m-%d')}, {host['cpu']}, {host['nproc']} cores, "
+          f"{host['software']}\n")
     print(f"First frame more than {MATCH_PX} px from the release's box ('–': none); "
           f"{args.variants} random variants of the EPYC's rsqrt table per run\n")
     print("| run | frames | table (shipped) | 13-bit model | variants, sorted | "

@@ -137,7 +137,8 @@ def main() -> int:
 def markdown(out: dict[str, Any]) -> str:
     m = out["machine"]
     workers = out.get("workers", m["nproc"])
-    lines = [f"Machine: nproc {m['nproc']}, {m['cpu']}; {workers} workers.", ""]
+    software = f", {m['software']}" if m.get("software") else ""
+    lines = [f"Machine: nproc {m['nproc']}, {m['cpu']}{software}; {workers} workers.", ""]
     if out["capacity"]:
         cols = list(dict.fromkeys((c.get("encoding", "jpeg"), c["preset"], c["fps"])
                                   for c in out["capacity"]))

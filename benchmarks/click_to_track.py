@@ -29,8 +29,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from arcf.adapters.liveview import LiveView
 from arcf.eval import load_dataset
+from arcf.eval.environment import describe
 from arcf.loadtools.procs import ServiceProcess
-from arcf.loadtools.system import cpu_model
 from arcf.schemas import Result
 from arcf.service.client import TrackingClient
 
@@ -102,7 +102,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             stop.set()
             view.close()
     print(f"# python benchmarks/click_to_track.py --boxes {args.boxes} --preset {args.preset}")
-    print(f"# {datetime.now(UTC):%Y-%m-%d %H:%M} UTC, {cpu_model()}")
+    print(f"# {datetime.now(UTC):%Y-%m-%d %H:%M} UTC, {describe()}")
     print("| from the drag to | median (ms) | p95 (ms) | max (ms) |")
     print("| --- | ---: | ---: | ---: |")
     for name, values in times.items():

@@ -19,7 +19,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import subprocess
 import sys
 import tempfile
@@ -104,6 +103,8 @@ def table(runs: dict[tuple[str, str], dict[str, Any]], seqs: list[tuple[str, Any
     from track_state import Run, false_alarms, occlusion_episodes  # beside this script
 
     from arcf.eval import aggregate, score_sequence
+    from arcf.eval.presence import pool as pool_presence
+    from arcf.eval.presence import score_presence
 
     made: dict[str, list[Run]] = {}
     for t in trackers:
@@ -111,16 +112,19 @@ def table(runs: dict[tuple[str, str], dict[str, Any]], seqs: list[tuple[str, Any
         for name, seq, clip in seqs:
             r = runs[(t, name)]
             n = len(r["boxes"])
-            made[t].append(Run(t, name, clip, np.array(r["boxes"], float),
-                               np.array(seq.groundtruth, float), np.array(r["states"]),
-                               np.zeros(n), np.zeros((n, 1)), np.zeros(n, bool),
-                               np.array(r["seconds"])))
+            made[t].append(Run(
+                preset=t, sequence=name, clip=clip, loss="", boxes=np.array(r["boxes"], float),
+                groundtruth=np.array(seq.groundtruth, float), state=np.array(r["states"]),
+                confidence=np.zeros(n), features=np.zeros((n, 1)),
+                reacquired=np.zeros(n, bool), seconds=np.array(r["seconds"]),
+                signals=np.full((n, 3), np.nan)))
     fps = {t: sum(len(r.seconds) for r in made[t] if not r.clip)
            / sum(float(r.seconds.sum()) for r in made[t] if not r.clip) for t in trackers}
     rows = ["| tracker | 9 sequences: P@20 / AUC | FPS (all frames) | × CSRT | 3 clips: "
             "P@20 / AUC | real losses flagged (≤ 3 frames) | found again (≤ 10 frames) | "
-            "hidden frames claimed tracking | not tracking per 1,000 good frames |",
-            "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+            "hidden frames claimed tracking | not tracking per 1,000 good frames | presence "
+            "F, 12 runs |",
+            "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for t in trackers:
         nine = aggregate({r.sequence: score_sequence(r.boxes, r.groundtruth)
                           for r in made[t] if not r.clip})
@@ -128,6 +132,8 @@ def table(runs: dict[tuple[str, str], dict[str, Any]], seqs: list[tuple[str, Any
                            for r in made[t] if r.clip})
         eps = [e for r in made[t] for e in occlusion_episodes(r)]
         fa, good = false_alarms(made[t])
+        presence = pool_presence(score_presence(r.boxes, r.groundtruth, r.state == 0)
+                                 for r in made[t]).f_score
         ratio = f"{fps[t] / fps['csrt']:.1f}" if "csrt" in fps else "–"
         state = t != "csrt"
         rows.append(
@@ -135,7 +141,8 @@ def table(runs: dict[tuple[str, str], dict[str, Any]], seqs: list[tuple[str, Any
             f"{clips.precision20:.3f} / {clips.auc:.3f} | "
             + (f"{sum(e.flagged for e in eps)}/{len(eps)} | {sum(e.found for e in eps)}/"
                f"{len(eps)} | {sum(e.false_claims for e in eps)} | "
-               f"{1000 * fa / max(good, 1):.1f} |" if state else "no state | – | – | – |"))
+               f"{1000 * fa / max(good, 1):.1f} | {presence:.3f} |" if state
+               else "no state | – | – | – | – |"))
     return rows
 
 
@@ -150,10 +157,8 @@ def main(argv: list[str] | None = None) -> int:
         worker(*args.worker)
         return 0
     sys.path.insert(0, str(ROOT))
-    import cv2
-
     from arcf.data import data_root
-    from arcf.loadtools.system import cpu_model
+    from arcf.eval.environment import describe
 
     trackers = [t for t in args.trackers.split(",") if t]
     csrt = csrt_python(ap, args) if "csrt" in trackers else ""
@@ -170,8 +175,7 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"# {name} {t}: {len(r['seconds']) / sum(r['seconds']):.0f} FPS",
                       file=sys.stderr)
     print(f"`python benchmarks/compare.py {' '.join(argv or sys.argv[1:])}`".replace(" `", "`"))
-    print(f"{time.strftime('%Y-%m-%d')}, {cpu_model()}, nproc {os.cpu_count()}, Python "
-          f"{platform.python_version()}, OpenCV {cv2.__version__}; one thread per tracker\n")
+    print(f"{time.strftime('%Y-%m-%d')}, {describe()}; one thread per tracker\n")
     print("\n".join(table(runs, seqs, trackers)))
     return 0
 

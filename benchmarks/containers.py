@@ -27,6 +27,7 @@ from typing import Any
 
 from arcf.data import data_root
 from arcf.eval import load_dataset
+from arcf.eval.environment import describe
 from arcf.loadtools.compose import INSTANCES, ComposeStack, stack_env
 from arcf.loadtools.driver import Clip, failover_fleet
 from arcf.loadtools.procs import free_port
@@ -118,8 +119,8 @@ def main() -> int:
         rows = trials(args, compose, router_port)
     finally:
         compose.down()
-    print(f"machine: {os.cpu_count()} cores; prepare (base + wheelhouse, warm): {prepare_s:.0f} s;"
-          f" up to both healthy: {up_s:.0f} s\n")
+    print(f"machine: {time.strftime('%Y-%m-%d')}, {describe()}; prepare (base + wheelhouse, "
+          f"warm): {prepare_s:.0f} s; up to both healthy: {up_s:.0f} s\n")
     print("| image | size (MB) |\n| --- | --- |")
     for tag in ("arcf-base:bookworm", "arcf-build:bookworm", "arcf-service:bench",
                 "arcf-prometheus:bench"):

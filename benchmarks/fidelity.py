@@ -45,6 +45,7 @@ import numpy as np
 import arcf
 from arcf.data import data_root
 from arcf.eval import load_dataset, read_results, score_sequence, write_results
+from arcf.eval.environment import describe
 from arcf.eval.metrics import centers
 from arcf.eval.report import map_difference_mean
 from arcf.eval.runner import DATASET_FOLDERS
@@ -343,7 +344,11 @@ def main() -> int:
 
     r = Report(args.data, args.out, sequences)
     n_seq = sum(len(v) for v in sequences.values())
-    out = [f"Data root: `{args.data}`; {n_seq} sequences; toolkit convention.", ""]
+    cached = len(configs + swept) * n_seq - len(jobs)
+    out = [f"{time.strftime('%Y-%m-%d')}, {describe()}"
+           + (f" ({cached} runs read from the cache in `{args.out}`)." if cached
+              else "."), ""]
+    out += [f"Data root: `{args.data}`; {n_seq} sequences; toolkit convention.", ""]
     out += ["Mean precision@20 / AUC over the sequences:", "", *r.accuracy(configs), ""]
     out += ["Precision@20 / AUC per sequence:", "", *r.per_sequence(configs), ""]
     out += ["Mean centre distance (px) to the release's boxes run here, and in brackets the "

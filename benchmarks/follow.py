@@ -13,23 +13,14 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import os
-import platform
 import sys
 from collections.abc import Sequence
 
 import numpy as np
 
 from arcf.eval import load_dataset
+from arcf.eval.environment import describe
 from arcf.loadtools.gimbalsim import run_follow
-
-
-def cpu_model() -> str:
-    with open("/proc/cpuinfo") as f:
-        for line in f:
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    return platform.machine()
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -40,9 +31,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--seconds", type=float, default=10.0)
     args = ap.parse_args(argv)
     print(f"# python benchmarks/follow.py {' '.join(argv or sys.argv[1:])}")
-    print(f"# {datetime.date.today()}, {os.cpu_count()} CPUs, {cpu_model()}, Python "
-          f"{platform.python_version()}; simulated time (the figures do not depend on the "
-          "machine's speed)")
+    print(f"# {datetime.date.today()}, {describe()}; simulated time (the figures do not depend "
+          "on the machine's speed)")
     print("\n| sequence | rate | settled within 10 % at | largest offset after 3 s | "
           "swing past the centre | frames not tracking |\n| --- | --- | --- | --- | --- | --- |")
     for name in args.sequences.split(","):

@@ -16,7 +16,6 @@ import argparse
 import datetime
 import math
 import os
-import platform
 import sys
 import time
 from collections.abc import Sequence
@@ -33,10 +32,10 @@ from pymavlink import mavutil
 from arcf.adapters.gimbal import FollowSettings, GimbalFollower, GimbalTarget
 from arcf.adapters.mavlink import CameraConfig, MavlinkCameras
 from arcf.eval import load_dataset
+from arcf.eval.environment import describe
 from arcf.loadtools.gimbalsim import SimulatedGimbal, VirtualCamera
 from arcf.loadtools.groundstation import GroundStation
 from arcf.loadtools.procs import ServiceProcess, free_port
-from arcf.loadtools.system import cpu_model
 from arcf.schemas import Result
 from arcf.service.client import TrackingClient
 
@@ -154,8 +153,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--seconds", type=float, default=10.0)
     args = ap.parse_args(argv)
     print(f"# python benchmarks/follow_service.py {' '.join(argv or sys.argv[1:])}")
-    print(f"# {datetime.date.today()}, {os.cpu_count()} CPUs, {cpu_model()}, Python "
-          f"{platform.python_version()}; real clock, 10 fps")
+    print(f"# {datetime.date.today()}, {describe()}; real clock, 10 fps")
     print("\n| sequence | capture to command (median, p95) | settled within 10 % at | "
           "largest offset after 3 s |\n| --- | --- | --- | --- |")
     with ServiceProcess(workers=1) as service:

@@ -240,7 +240,8 @@ def main() -> int:
         json.dump(out, f, indent=1)
     m = out["machine"]
     print(f"`python benchmarks/hostile.py --phase-s {args.phase_s:g} --workers {args.workers}`"
-          f", {time.strftime('%Y-%m-%d')}. Machine: nproc {m['nproc']}, {m['cpu']}; two "
+          f", {time.strftime('%Y-%m-%d')}. Machine: nproc {m['nproc']}, {m['cpu']}, "
+          f"{m['software']}; two "
           f"victim ARCF-H streams at 10 fps on the attacker's worker ({args.workers} worker(s)); "
           f"{args.phase_s:g} s per phase (victim figures from its second second on).\n")
     print("| phase | victim frames/s offered / processed | victim dropped | victim p50 / p99 "

@@ -363,7 +363,8 @@ def main() -> int:
         json.dump(out, f, indent=1)
     m = out["machine"]
     print(f"`python benchmarks/hostile_adapters.py --phase-s {args.phase_s:g}`, "
-          f"{time.strftime('%Y-%m-%d')}. Machine: nproc {m['nproc']}, {m['cpu']}.\n")
+          f"{time.strftime('%Y-%m-%d')}. Machine: nproc {m['nproc']}, {m['cpu']}, "
+          f"{m['software']}.\n")
     print("| adapter | phase | victim answered / failed | victim p50 / p99 (ms) | adapter peak "
           "RSS (MB) | adapter threads (peak) | adapter CPU (share of a core) |")
     print("| --- | --- | --- | --- | --- | --- | --- |")

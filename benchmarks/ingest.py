@@ -16,7 +16,6 @@ from __future__ import annotations
 import argparse
 import datetime
 import os
-import platform
 import subprocess
 import sys
 import tempfile
@@ -28,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from arcf.eval import load_dataset
+from arcf.eval.environment import describe
 from arcf.loadtools.procs import ServiceProcess, free_port
 from arcf.loadtools.senders import (
     RtspServer,
@@ -50,16 +50,6 @@ def cpu_s(pid: int) -> float:
     with open(f"/proc/{pid}/stat") as f:
         fields = f.read().rsplit(")", 1)[1].split()
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-
-
-def machine() -> str:
-    model = "unknown CPU"
-    with open("/proc/cpuinfo") as f:
-        for line in f:
-            if line.startswith("model name"):
-                model = line.split(":", 1)[1].strip()
-                break
-    return f"{os.cpu_count()} CPUs, {model}, Python {platform.python_version()}"
 
 
 def run(kind: str, units: list[bytes], size: tuple[int, int], seconds: float,
@@ -138,7 +128,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     units = encode_video(images, "h264", fps=FPS, gop=GOP, repeat_headers=True)
     size = (images[0].shape[1], images[0].shape[0])
     print(f"# python benchmarks/ingest.py {' '.join(argv or sys.argv[1:])}")
-    print(f"# {datetime.date.today()}, {machine()}")
+    print(f"# {datetime.date.today()}, {describe()}")
     print(f"# camera: {size[0]}x{size[1]} H.264 at {FPS} fps, mean "
           f"{np.mean([len(u) for u in units]) / 1e3:.0f} kB a unit, keyframe every {GOP}")
     print("\n| source | frames | latency median / p95 (ms) | ingest CPU per frame (ms) | "

@@ -24,6 +24,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from arcf.eval import load_dataset
+from arcf.eval.environment import describe
 from arcf.loadtools.procs import ServiceProcess, free_port
 from arcf.loadtools.video import encode_video
 from arcf.service.client import TrackingClient
@@ -89,8 +90,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             time.sleep(3.0)  # started, connected
             url = f"http://127.0.0.1:{port}/api/streams/view"
             print(f"arcf-view on a {args.fps:g} fps 1280x720 {args.encoding} stream, "
-                  f"--max-fps 5 --max-width 960, {args.seconds:g} s per window, nproc "
-                  f"{os.cpu_count()}:")
+                  f"--max-fps 5 --max-width 960, {args.seconds:g} s per window; "
+                  f"{time.strftime('%Y-%m-%d')}, {describe()}:")
             print("| viewers | arcf-view CPU (% of a core) | pictures / s per viewer |")
             print("| ---: | ---: | ---: |")
             for n in args.viewers:

@@ -40,8 +40,8 @@ from pymavlink import mavutil
 
 from arcf.adapters.mavlink import CameraConfig, MavlinkCameras
 from arcf.eval import load_dataset
+from arcf.eval.environment import describe
 from arcf.loadtools.procs import ServiceProcess, free_port
-from arcf.loadtools.system import cpu_model
 from arcf.loadtools.video import encode_video
 from arcf.schemas import Result
 from arcf.service.client import TrackingClient
@@ -213,7 +213,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--encoding", choices=("jpeg", "h264", "video-key"), default="jpeg")
     args = ap.parse_args(argv)
     print(f"# python benchmarks/mavlink_path.py {' '.join(argv or sys.argv[1:])}")
-    print(f"# {time.strftime('%Y-%m-%d')}, {os.cpu_count()} CPUs, {cpu_model()}")
+    print(f"# {time.strftime('%Y-%m-%d')}, {describe()}")
     rig = Rig(args.sequence, args.status_hz, args.encoding)
     try:
         if args.mavproxy:

@@ -122,7 +122,8 @@ def plot(r: dict[str, Any], path: Path) -> None:
 
 def markdown(out: dict[str, Any]) -> str:
     m = out["machine"]
-    lines = [f"Machine: nproc {m['nproc']}, {m['cpu']}.", "",
+    software = f", {m['software']}" if m.get("software") else ""
+    lines = [f"Machine: nproc {m['nproc']}, {m['cpu']}{software}.", "",
              "| preset, fps, sequence | phase | streams | offered / processed (frames/s) | "
              "dropped | latency p50 / p99 / max (ms) | p99 1st / 2nd half (ms) | "
              "memory median / max (MB) | memory trend (MB/min) |",

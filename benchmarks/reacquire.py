@@ -43,6 +43,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from arcf.data import data_root
+from arcf.eval.environment import describe
+from arcf.eval.losses import covered_frames
 
 PRESETS = ("arcf-hc", "arcf-h", "bacf")
 DATASETS = ("uav123_10fps", "dtb70", "uavdt")
@@ -69,28 +71,6 @@ class Pair:
     reacq: Run
 
 
-def occluded_frames(paths: Sequence[Path], gt: np.ndarray, start: int,
-                    length: int) -> Iterator[np.ndarray]:
-    """The frames with the target covered for ``length`` frames from ``start``: its box,
-    grown by 30 % of its size on each side, painted over with the frame's own texture from just
-    above it (or grey at the top border), following the target as it moves."""
-    import cv2
-
-    for k, path in enumerate(paths):
-        frame = cv2.imread(str(path), cv2.IMREAD_COLOR)
-        if frame is None:
-            raise OSError(f"cannot decode {path}")
-        if start <= k < start + length and np.all(np.isfinite(gt[k])):
-            x, y, w, h = gt[k]
-            x0, y0 = max(int(x - 1 - 0.3 * w), 0), max(int(y - 1 - 0.3 * h), 0)
-            x1, y1 = int(x - 1 + 1.3 * w), int(y - 1 + 1.3 * h)
-            patch = frame[max(2 * y0 - y1 - 20, 0):max(y0 - 20, 0), x0:x1]
-            region = frame[y0:y1, x0:x1]
-            region[...] = patch[:region.shape[0], :region.shape[1]] \
-                if patch.shape[:2] == region.shape[:2] else 90
-        yield frame
-
-
 def _run(preset: str, seq: object, overrides: dict, occlusion: int = 0) -> Run:
 
     import arcf
@@ -100,7 +80,7 @@ def _run(preset: str, seq: object, overrides: dict, occlusion: int = 0) -> Run:
 
     paths = seq.frames  # type: ignore[attr-defined]
     if occlusion:
-        frames: Iterator[np.ndarray] = occluded_frames(
+        frames: Iterator[np.ndarray] = covered_frames(
             paths, np.asarray(seq.groundtruth), len(paths) // 2, occlusion)  # type: ignore[attr-defined]
     else:
         frames = (seq.read_frame(i) for i in range(len(paths)))  # type: ignore[attr-defined]
@@ -175,7 +155,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             pairs = list(pool.map(run_pair, *zip(*todo, strict=True),
                                   [occlusion] * len(todo)))
         print(f"# re-acquisition, {what}, update policy {args.policy!r}: {len(pairs)} pairs "
-              f"of runs in {time.perf_counter() - t0:.0f} s, {os.cpu_count()} cores\n")
+              f"of runs in {time.perf_counter() - t0:.0f} s; {time.strftime('%Y-%m-%d')}, "
+              f"{describe()}\n")
         print("\n".join(table(pairs)))
         worst = min(pairs, key=lambda p: p.reacq.auc - p.plain.auc)
         loss = worst.plain.auc - worst.reacq.auc

@@ -29,6 +29,7 @@ import numpy as np
 from arcf.adapters import ros2_types as rt
 from arcf.adapters.ros2 import Ros2Bridge, attachment, topic_key
 from arcf.eval import load_dataset
+from arcf.eval.environment import describe
 from arcf.loadtools.procs import ServiceProcess
 from arcf.service.client import TrackingClient
 from arcf.service.transport import open_session
@@ -103,6 +104,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         client.close()
         service.stop()
     r, d = np.array(ros[1:]), np.array(direct[1:])  # the first frame initialises
+    print(f"{time.strftime('%Y-%m-%d')}, {describe()}")
     print(f"{args.sequence}, {len(r)} frames each, ARCF-HC, lock-step, 1 worker:")
     print(f"  ROS 2 (CompressedImage -> Detection2DArray): median {np.median(r):.1f} ms, "
           f"p95 {np.percentile(r, 95):.1f} ms")

@@ -31,7 +31,7 @@ from arcf.eval import load_dataset
 from arcf.loadtools.driver import Clip, Fleet, failover_fleet
 from arcf.loadtools.loadtest import run_load
 from arcf.loadtools.procs import RouterProcess, ServiceProcess, start_instances
-from arcf.loadtools.system import process_tree
+from arcf.loadtools.system import machine, process_tree
 from arcf.service.client import TrackingClient
 from arcf.service.cluster import owner
 
@@ -151,7 +151,8 @@ def throughput(args: argparse.Namespace, seq: Any) -> list[dict[str, Any]]:
 def markdown(out: dict[str, Any]) -> str:
     import numpy as np
 
-    lines = []
+    m = out["machine"]
+    lines = [f"{out['date']}. Machine: nproc {m['nproc']}, {m['cpu']}, {m['software']}.", ""]
     if out.get("failover"):
         lines += ["| event | trials | streams moved | resumed | event to first resumed result, "
                   "ms: median / max | moved stream without results, ms: median / max | frames "
@@ -195,7 +196,8 @@ def main() -> int:
     ap.add_argument("--out", default="scaleout.json")
     args = ap.parse_args()
     seq = load_dataset(args.dataset, sequences=[args.sequence])[0]
-    out: dict[str, Any] = {"args": vars(args), "nproc": os.cpu_count()}
+    out: dict[str, Any] = {"args": vars(args), "nproc": os.cpu_count(),
+                           "date": time.strftime("%Y-%m-%d"), "machine": machine()}
     if not args.skip_failover:
         out["failover"] = failover(args, seq)
     if not args.skip_throughput:

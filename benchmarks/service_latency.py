@@ -20,9 +20,9 @@ import numpy as np
 
 import arcf
 from arcf.eval import load_dataset
+from arcf.eval.environment import describe
 from arcf.loadtools.driver import Clip, Fleet, Pacing
 from arcf.loadtools.procs import ServiceProcess
-from arcf.loadtools.system import cpu_model
 from arcf.service.client import TrackingClient
 from arcf.service.decoding import decode_compressed
 
@@ -61,7 +61,7 @@ def main() -> int:
     svc = ServiceProcess(workers=os.cpu_count() or 1, metrics=False, quiet=False,
                          env={"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"})
     print(f"# {svc.ready_line}")
-    print(f"Machine: {os.cpu_count()} CPUs, {cpu_model()}; lock-step replay, "
+    print(f"Machine: {describe()}; lock-step replay, "
           "one frame in flight; times in ms per frame.\n")
     print("| preset | sequence | frames | library: decode + track, mean / p50 / p99 | "
           "through the service: capture -> result, mean / p50 / p99 | overhead, mean / p50 |")

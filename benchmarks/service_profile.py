@@ -24,7 +24,6 @@ The machine should be otherwise idle: the generator (this process) runs beside t
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time
 from pathlib import Path
@@ -150,8 +149,8 @@ def main(argv: list[str] | None = None) -> int:
 
     import arcf
     from arcf.eval import load_dataset
+    from arcf.eval.environment import describe
     from arcf.loadtools.driver import Clip
-    from arcf.loadtools.system import cpu_model
     from arcf.service.stages import STAGES
 
     arcf.warm_up()
@@ -171,7 +170,7 @@ def main(argv: list[str] | None = None) -> int:
     h, w = seq.read_frame(0).shape[:2]
     print(f"`python benchmarks/service_profile.py {' '.join(argv or sys.argv[1:])}`"
           .replace(" `", "`"))
-    print(f"{time.strftime('%Y-%m-%d')}, {cpu_model()}, nproc {os.cpu_count()}; {args.preset} "
+    print(f"{time.strftime('%Y-%m-%d')}, {describe()}; {args.preset} "
           f"on {args.sequence} ({w}x{h}), one stream at {args.fps:g} fps, {args.frames} frames, "
           f"{args.router} router; CPU ms per frame\n")
     encs = list(columns)

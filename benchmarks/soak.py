@@ -102,8 +102,9 @@ def plot(r: dict[str, Any], path: Path) -> None:
 def markdown(r: dict[str, Any]) -> str:
     m, led, load = r["machine"], r["ledger"], r["load"]
     lat = load["latency_ms"]
+    software = f", {m['software']}" if m.get("software") else ""
     return "\n".join([
-        f"Machine: nproc {m['nproc']}, {m['cpu']}.", "",
+        f"Machine: nproc {m['nproc']}, {m['cpu']}{software}.", "",
         "| minutes | streams at a time | sessions started / stopped | frames sent | "
         "anonymous memory start / warm / end (MB) | growth after warm-up (MB) | trend (MB/h) | "
         "RSS max (MB) | latency p50 / p99 (ms) | dropped | unaccounted | sessions left |",

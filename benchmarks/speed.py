@@ -19,7 +19,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import statistics
 import subprocess
 import sys
@@ -112,8 +111,9 @@ def setup_csrt(venv: Path) -> Path:
     py = venv / "bin" / "python"
     if not py.exists():
         subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True)
+        # the OpenCV range the project is tested with (pyproject.toml)
         subprocess.run([str(py), "-m", "pip", "install", "-q", "numpy",
-                        "opencv-contrib-python-headless"], check=True)
+                        "opencv-contrib-python-headless>=5.1,<5.2"], check=True)
     return py
 
 
@@ -217,10 +217,14 @@ def main() -> int:
     if args.stages:
         print_stages(stage_runs)
         return 0
-    from arcf.loadtools.system import cpu_model  # here: the CSRT workers' environment lacks it
+    from arcf.eval.environment import describe  # here: the CSRT workers' environment lacks it
 
-    print(f"Machine: {os.cpu_count()} CPUs (`nproc`), {cpu_model()}; Python "
-          f"{platform.python_version()}. FPS = frames / (init + update seconds), frames decoded "
+    contrib = ""
+    if csrt:  # CSRT runs on the OpenCV of its own environment
+        cv = subprocess.run([csrt, "-c", "import cv2; print(cv2.__version__)"],
+                            capture_output=True, text=True).stdout.strip()
+        contrib = f"; CSRT: opencv-contrib {cv or '?'}"
+    print(f"Machine: {describe()}{contrib}. FPS = frames / (init + update seconds), frames decoded "
           "beforehand; arcf's Numba kernels are loaded before timing (the service does so when "
           "a worker starts).\n")
     if kernels:
@@ -265,9 +269,9 @@ def print_stages(stage_runs: dict[str, list[tuple[int, dict]]]) -> None:
     """Per-tracker table: ms per frame of each stage over all frames, share, floor."""
     from stages import STAGES
 
-    from arcf.loadtools.system import cpu_model
+    from arcf.eval.environment import describe
 
-    print(f"Machine: {os.cpu_count()} CPUs (`nproc`), {cpu_model()}; single-threaded; stage "
+    print(f"Machine: {describe()}; single-threaded; stage "
           "times are exclusive (a stage called inside another is charged to itself); floors "
           "as defined in benchmarks/stages.py.\n")
     for t, runs in stage_runs.items():

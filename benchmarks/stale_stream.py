@@ -211,7 +211,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(f"$ python {shlex.join(['benchmarks/stale_stream.py', *(argv or sys.argv[1:])])}")
     m = machine()
     print(f"{datetime.datetime.now().astimezone():%Y-%m-%d %H:%M %Z}, nproc {m['nproc']}, "
-          f"{m['cpu']}, load average {' '.join(f'{x:.1f}' for x in os.getloadavg())}")
+          f"{m['cpu']}, {m['software']}, load average "
+          f"{' '.join(f'{x:.1f}' for x in os.getloadavg())}")
     print(f"stale_after_s {args.stale_after_s:g} (service and adapter), {args.fps:g} fps, "
           f"status at {args.status_hz:g} Hz, preset {args.preset}")
     service = ServiceProcess("--stale-after-s", str(args.stale_after_s), workers=1)

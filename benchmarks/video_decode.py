@@ -23,6 +23,7 @@ import cv2
 import numpy as np
 
 from arcf.data import data_root
+from arcf.eval.environment import describe
 from arcf.service.decoding import decode_compressed
 from arcf.service.video import StreamDecoder
 
@@ -70,8 +71,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         for i, u in enumerate(units[:30]):
             d.decode(i, u)
     per_stream = (rss_mb() - base) / args.streams
-    print(f"{w}x{h}, {len(units)} frames of {args.sequence}, 1 thread, "
-          f"nproc {os.cpu_count()}:")
+    print(f"{w}x{h}, {len(units)} frames of {args.sequence}, 1 thread; "
+          f"{time.strftime('%Y-%m-%d')}, {describe()}, PyAV {av.__version__}:")
     unit_kb = np.mean([len(u) for u in units]) / 1e3
     print(f"  H.264 (libx264 veryfast, keyframe every 30, mean {unit_kb:.1f} kB/unit): "
           f"decode median {np.median(t_h264):.2f} ms, p95 {np.percentile(t_h264, 95):.2f} ms")

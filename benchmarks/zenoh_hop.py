@@ -23,16 +23,17 @@ on-host only) and off (what a frame from another host, or a container without a 
 from __future__ import annotations
 
 import argparse
-import os
 import subprocess
 import sys
 import tempfile
 import time
 from datetime import UTC, datetime
+from importlib import metadata
 from pathlib import Path
 
+from arcf.eval.environment import describe
 from arcf.loadtools.procs import free_port
-from arcf.loadtools.system import cpu_model, cpu_seconds
+from arcf.loadtools.system import cpu_seconds
 
 #: One role per process: "router", "sub" (counts, answers the count on a line of stdin) or
 #: "pub" (puts ``count`` messages of ``size`` bytes at ``rate`` a second, prints its process's
@@ -147,8 +148,8 @@ def main() -> int:
         ap.error(f"unknown topologies: {', '.join(sorted(unknown))}")
     print(f"`python benchmarks/zenoh_hop.py --sizes {args.sizes} --messages {args.messages} "
           f"--rate {args.rate:g} --topologies {args.topologies}`")
-    print(f"{datetime.now(UTC):%Y-%m-%d}, {cpu_model()}, nproc {os.cpu_count()}; "
-          f"CPU ms per message received\n")
+    print(f"{datetime.now(UTC):%Y-%m-%d}, {describe()}, Zenoh "
+          f"{metadata.version('eclipse-zenoh')}; CPU ms per message received\n")
     print("| topology | link | shared memory | message bytes | router | subscriber | publisher "
           "| received |")
     print("| --- | --- | --- | --- | --- | --- | --- | --- |")

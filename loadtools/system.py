@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import contextlib
 import os
-import platform
 import threading
 import time
 from pathlib import Path
@@ -17,20 +16,19 @@ from typing import Any
 
 import numpy as np
 
+from ..eval.environment import cpu_model as cpu_model  # re-exported: the load tools' name
+from ..eval.environment import versions
+
 _TICK = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
 
 
-def cpu_model() -> str:
-    with contextlib.suppress(OSError):
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    return platform.processor() or "unknown"
-
-
 def machine() -> dict[str, Any]:
-    """What every benchmark records beside its figures: ``nproc`` and the CPU model."""
-    return {"nproc": os.cpu_count(), "cpu": cpu_model()}
+    """What every benchmark records beside its figures: ``nproc``, the CPU model, and the
+    versions of Python and the libraries (:func:`arcf.eval.environment.versions`), the last
+    also as one printable string."""
+    v = versions()
+    return {"nproc": os.cpu_count(), "cpu": cpu_model(), "versions": v,
+            "software": ", ".join(f"{k} {x}" for k, x in v.items())}
 
 
 def cpu_seconds(pid: int) -> float:

@@ -6,6 +6,8 @@
         groundtruth
     arcf eval failure results/arcf-h/UAV123_10fps $ARCF_DATA/published_results/UAV123_10fps/\
         groundtruth --plot failure.png
+    arcf eval presence results/arcf-h/UAV123_10fps $ARCF_DATA/published_results/UAV123_10fps/\
+        groundtruth
 """
 
 from __future__ import annotations
@@ -64,8 +66,12 @@ def cmd_run(args: argparse.Namespace) -> int:
               f"{len(infos) - len(ran)} already done -> {folder}", file=sys.stderr)
         gt = root / "published_results" / dataset_folder(seqs[0].dataset) / "groundtruth"
         if gt.is_dir():
-            _print_score(score_folder(folder, gt, sequences=[s.name for s in seqs]),
-                         read_fps(folder), f"{spec.name} / {dataset_folder(seqs[0].dataset)}")
+            names = [s.name for s in seqs]
+            title = f"{spec.name} / {dataset_folder(seqs[0].dataset)}"
+            _print_score(score_folder(folder, gt, sequences=names), read_fps(folder), title)
+            from .presence import score_folder_presence
+
+            _print_presence(score_folder_presence(folder, gt, sequences=names), title)
     return status
 
 
@@ -151,6 +157,34 @@ def cmd_failure(args: argparse.Namespace) -> int:
     return 0
 
 
+def _print_presence(per: dict[str, Any], title: str) -> None:
+    from .presence import pool
+
+    print(f"## Target presence: {title} (reported present: state `tracking`)\n")
+    print("| sequence | frames | target visible | reported present | presence P / R / F | "
+          "tracking P / R / F (VOT-LT) |\n| --- | --- | --- | --- | --- | --- |")
+    for name, s in [*per.items(), ("**all**", pool(per.values()))]:
+        print(f"| {name} | {s.frames} | {s.visible} | {s.reported} | {s.precision:.3f} / "
+              f"{s.recall:.3f} / {s.f_score:.3f} | {s.tracking_precision:.3f} / "
+              f"{s.tracking_recall:.3f} / {s.tracking_f:.3f} |")
+    print()
+
+
+def cmd_presence(args: argparse.Namespace) -> int:
+    """Whether the run says its target is there when it is (``arcf.eval.presence``)."""
+    from .presence import score_folder_presence
+
+    try:
+        per = score_folder_presence(args.results, args.groundtruth,
+                                    sequences=_sequence_filter(args.sequences))
+    except (ResultsError, DatasetError, ValueError, FileNotFoundError) as exc:
+        raise SystemExit(f"arcf eval presence: {exc}") from exc
+    if not per:
+        raise SystemExit(f"arcf eval presence: no result files in {args.results}")
+    _print_presence(per, str(args.results))
+    return 0
+
+
 def cmd_report(args: argparse.Namespace) -> int:
     from .paper import build_report
 
@@ -208,6 +242,16 @@ def add_parser(sub: argparse._SubParsersAction[Any], parse_override: Any) -> Non
                    help="frames a flag may lag a failure frame and still catch it (default 3)")
     f.add_argument("--plot", help="write the confidence's precision-recall curve (PNG)")
     f.set_defaults(func=cmd_failure)
+
+    pr = esub.add_parser(
+        "presence", help="precision, recall and F-score of the target's presence (VOT-LT)",
+        description="A frame is reported present when the run's state is tracking. Presence: "
+        "right when the box overlaps the visible target; tracking (VOT-LT): each reported "
+        "frame scores its IoU.")
+    pr.add_argument("results", help="an arcf eval run folder (<sequence>.txt and _details.csv)")
+    pr.add_argument("groundtruth", help="folder of <sequence>.txt ground-truth files")
+    pr.add_argument("--sequences", help="comma-separated subset")
+    pr.set_defaults(func=cmd_presence)
 
     rp = esub.add_parser(
         "report",

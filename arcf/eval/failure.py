@@ -25,12 +25,11 @@ from __future__ import annotations
 import os
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from .metrics import overlaps
-from .results import ResultsError, list_result_sequences, read_results
+from .results import list_result_sequences, read_run
 
 #: frames of delay a flag may take and still catch a failure frame (issue 16's criterion)
 DEFAULT_DELAY = 3
@@ -179,27 +178,13 @@ def score_folder_failures(results_dir: str | os.PathLike[str],
     """Failure detection of an ``arcf eval run`` folder: each sequence's boxes against its
     ground truth, its flags from the ``state`` column of ``<sequence>_details.csv`` (frame 0,
     the given box, is left out)."""
-    folder, gt_folder = Path(results_dir), Path(groundtruth_dir)
-    names = list(sequences) if sequences is not None else list_result_sequences(folder)
+    names = list(sequences) if sequences is not None else list_result_sequences(results_dir)
     out = {}
     for name in names:
-        details_path = folder / f"{name}_details.csv"
-        if not details_path.is_file():
-            raise ResultsError(f"{details_path} not found (runs of arcf eval run write it)")
-        with details_path.open(encoding="utf-8") as f:
-            header = f.readline().strip().split(",")
-        if "state" not in header:
-            raise ResultsError(f"{details_path} has no state column (a run before the track "
-                               "state existed: run it again)")
-        details = np.loadtxt(details_path, delimiter=",", skiprows=1, ndmin=2)
-        boxes = read_results(folder / f"{name}.txt")
-        gt = read_results(gt_folder / f"{name}.txt")
-        if not (len(boxes) == len(gt) == len(details)):
-            raise ResultsError(f"{name}: {len(boxes)} boxes, {len(gt)} ground-truth rows and "
-                               f"{len(details)} detail rows differ")
+        boxes, gt, details = read_run(results_dir, groundtruth_dir, name)
         failure, good = failure_frames(boxes, gt)
-        flags = details[:, header.index("state")] != 0
-        conf = details[:, header.index("confidence")]
+        flags = details["state"] != 0
+        conf = details["confidence"]
         out[name] = SequenceFailures(
             score_flags(flags[1:], failure[1:], good[1:], delay), failure[1:], good[1:],
             conf[1:])

@@ -22,6 +22,7 @@ import numpy as np
 from ..data import data_root
 from . import report
 from .datasets import DatasetError, load_dataset
+from .environment import describe
 from .metrics import DatasetScore, aggregate, score_sequence
 from .results import read_fps, read_results
 from .runner import TrackerSpec, dataset_folder, result_dir, run_experiment
@@ -138,7 +139,7 @@ def build_report(
               "Every sequence under the data root: " + "; ".join(
                   f"{TITLES[ds]}: {', '.join(n)}" for ds, n in local.items()) + ". The published "
               "trackers are scored on exactly the same sequences. Our FPS: this machine "
-              f"({os.cpu_count()} cores), "
+              f"({describe()}), "
               "single-threaded workers, tracker time only.", ""]
     for spec in configs:
         run_spec = TrackerSpec(spec.preset, spec.overrides, _folder_label(spec))

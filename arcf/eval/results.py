@@ -23,6 +23,7 @@ __all__ = [
     "list_result_sequences",
     "read_fps",
     "read_results",
+    "read_run",
     "score_folder",
     "write_results",
 ]
@@ -41,6 +42,30 @@ class ResultsError(ValueError):
 def read_results(path: str | os.PathLike[str]) -> np.ndarray:
     """Read a result file as an ``(n, 4)`` float64 array (commas, tabs or spaces; NaN allowed)."""
     return read_boxes(path, ResultsError)
+
+
+def read_run(results_dir: str | os.PathLike[str], groundtruth_dir: str | os.PathLike[str],
+             name: str) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+    """One sequence of an ``arcf eval run`` folder: its boxes ``(N, 4)``, its ground truth
+    ``(N, 4)`` and the per-frame columns of ``<sequence>_details.csv`` (``state``,
+    ``confidence``, ...), each ``(N,)``; a :class:`ResultsError` when a file is missing, has no
+    ``state`` column (a run from before the track state existed) or the lengths differ."""
+    folder = Path(results_dir)
+    path = folder / f"{name}_details.csv"
+    if not path.is_file():
+        raise ResultsError(f"{path} not found (runs of arcf eval run write it)")
+    with path.open(encoding="utf-8") as f:
+        header = f.readline().lstrip("# ").strip().split(",")
+    if "state" not in header:
+        raise ResultsError(f"{path} has no state column (a run before the track state "
+                           "existed: run it again)")
+    details = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+    boxes = read_results(folder / f"{name}.txt")
+    gt = read_results(Path(groundtruth_dir) / f"{name}.txt")
+    if not (len(boxes) == len(gt) == len(details)):
+        raise ResultsError(f"{name}: {len(boxes)} boxes, {len(gt)} ground-truth rows and "
+                           f"{len(details)} detail rows differ")
+    return boxes, gt, {k: details[:, i] for i, k in enumerate(header)}
 
 
 def write_results(

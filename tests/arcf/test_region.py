@@ -48,12 +48,18 @@ def sequences() -> dict[str, tuple[list[np.ndarray], tuple[float, ...]]]:
     return out
 
 
-@pytest.mark.parametrize("preset", ["arcf-h", "arcf-hc", "bacf"])
+#: every preset as shipped, and ARCF-H with its search on (off as shipped)
+PRESETS = [("arcf-h", False), ("arcf-h", True), ("arcf-hc", False), ("bacf", False)]
+
+
+@pytest.mark.parametrize(("preset", "search"), PRESETS)
 @pytest.mark.parametrize("name", [n for _, n in CASES])
 def test_a_frame_known_only_where_the_tracker_reads_gives_its_results(
-        preset: str, name: str, sequences: dict) -> None:
+        preset: str, search: bool, name: str, sequences: dict) -> None:
     frames, box = sequences[name]
-    kw = {"colornames_path": default_colornames_path()} if preset == "arcf-hc" else {}
+    kw: dict = {"colornames_path": default_colornames_path()} if preset == "arcf-hc" else {}
+    if search:
+        kw["state.reacquire"] = True
     whole, partial = arcf.create_tracker(preset, **kw), arcf.create_tracker(preset, **kw)
     assert partial.read_region() is None  # before init: the whole frame
     whole.init(frames[0], box)
@@ -83,6 +89,8 @@ def test_a_frame_known_only_where_the_tracker_reads_gives_its_results(
     assert shares, "the tracker never named a region"
     # a track that went lost on a region frame searched the whole frame, asked for then
     assert asked_whole == went_lost
+    if search and name == "wakeboard7":  # the rider is lost and searched for
+        assert went_lost > 0
     if name == "truck4_1":  # a 11x8 px target: a small part of the frame is read
         assert max(shares) < 0.1
 

@@ -75,13 +75,14 @@ def test_the_confidence_is_the_fitted_model_of_the_features() -> None:
     assert f == pytest.approx((1.0, 0.5, 0.2, 1.0, 0.6, math.log(10)), abs=1e-5)
     z = 1.0 + 2.0 * 0.5 - 0.5 * 0.2 - 1.5 + 0.8 * 0.6 - 0.3 * math.log(10) - 2.0
     assert c == pytest.approx(1 / (1 + math.exp(-z)), rel=1e-5)
-    # the shipped model: a well-seen target is trusted, the same box looking like something
-    # else is not, and a coasting track less than a tracking one
+    # the shipped model (ln PSR, the state and the track's age): a sharp response is trusted,
+    # a flat one is not, and an old or a coasting track less than a young tracking one
     shipped = TrackMonitor(StateParams())
-    seen = shipped.confidence(8.0, 0.0, 0.0, TrackState.TRACKING, 0.8, 50)[0]
-    other = shipped.confidence(8.0, 0.0, 0.0, TrackState.TRACKING, -0.2, 50)[0]
-    coasting = shipped.confidence(8.0, 0.0, 0.0, TrackState.COASTING, 0.8, 50)[0]
-    assert seen > 0.9 and other < seen and coasting < seen
+    sharp = shipped.confidence(12.0, 0.0, 0.0, TrackState.TRACKING, 0.8, 10)[0]
+    flat = shipped.confidence(3.0, 0.0, 0.0, TrackState.TRACKING, 0.8, 50)[0]
+    older = shipped.confidence(12.0, 0.0, 0.0, TrackState.TRACKING, 0.8, 200)[0]
+    coasting = shipped.confidence(12.0, 0.0, 0.0, TrackState.COASTING, 0.8, 10)[0]
+    assert sharp > 0.9 and flat < 0.3 and older < sharp and coasting < sharp
 
 
 def _frames(n: int = 6) -> tuple[list[np.ndarray], tuple[float, float, float, float]]:
