@@ -557,7 +557,9 @@ class MavlinkCameras:
                 TARGET_DATA_NONE, *coords, 0)
         size = (frame.width, frame.height) if frame and frame.width and frame.height else None
         size = size or self._sizes.get(cam.config.stream_id)
+        boxed = False
         if session and result is not None and size and all(map(math.isfinite, result.box)):
+            boxed = True
             x, y, w, h = result.box
             fw, fh = size
             left, top = (x - 1.0) / fw, (y - 1.0) / fh
@@ -567,10 +569,13 @@ class MavlinkCameras:
             return mav.MAVLink_camera_tracking_image_status_message(
                 mav.CAMERA_TRACKING_STATUS_FLAGS_IDLE, mav.CAMERA_TRACKING_MODE_NONE, 0,
                 *coords, 0)
+        # target data only with a box: not before the session's first result, nor with a
+        # notice that carries none (NaN: the spec's "unknown")
         return mav.MAVLink_camera_tracking_image_status_message(
             tracking_status(result) if result is not None
             else mav.CAMERA_TRACKING_STATUS_FLAGS_ACTIVE,  # started, first result on its way
-            mode, mav.CAMERA_TRACKING_TARGET_DATA_IN_STATUS, *coords, 0)
+            mode, mav.CAMERA_TRACKING_TARGET_DATA_IN_STATUS if boxed else TARGET_DATA_NONE,
+            *coords, 0)
 
     def _information(self, cam: _Camera) -> Any:
         w, h = self._size(cam) or (0, 0)  # unreadable or too large: 0 x 0

@@ -15,8 +15,9 @@ view's centre is recorded at every frame.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from typing import Any
 
 import cv2
 import numpy as np
@@ -107,6 +108,7 @@ class FollowRun:
 
 
 def run_follow(seq: Sequence, *, rate_hz: float, preset: str = "arcf-h",
+               overrides: Mapping[str, Any] | None = None,
                settings: FollowSettings | None = None, view_size: tuple[int, int] = (640, 360),
                world_hfov_deg: float = 90.0, start: tuple[float, float] = (0.25, -0.2),
                seconds: float | None = None,
@@ -115,7 +117,8 @@ def run_follow(seq: Sequence, *, rate_hz: float, preset: str = "arcf-h",
 
     The gimbal starts pointed so that the target sits at ``start`` (shares of the view,
     right and down positive) and the tracker is initialised there on the ground truth box;
-    ``world_edit(k, picture)`` may change the world picture of frame k (an occlusion)."""
+    ``world_edit(k, picture)`` may change the world picture of frame k (an occlusion);
+    ``overrides`` go to the preset (``create_tracker``)."""
     fps = 10.0  # UAV123@10fps, DTB70 and UAVDT as shared: 10 pictures a second
     first = seq.read_frame(0)
     world_size = (first.shape[1], first.shape[0])
@@ -127,7 +130,7 @@ def run_follow(seq: Sequence, *, rate_hz: float, preset: str = "arcf-h",
     gimbal = SimulatedGimbal()
     gimbal.yaw = (tx - start[0] * view_size[0] - world_size[0] / 2) / cam.px_per_deg
     gimbal.pitch = -(ty - start[1] * view_size[1] - world_size[1] / 2) / cam.px_per_deg
-    tracker = arcf.create_tracker(preset)
+    tracker = arcf.create_tracker(preset, **dict(overrides or {}))
     controller = FollowController(settings)
     run = FollowRun()
     dt = 1.0 / rate_hz

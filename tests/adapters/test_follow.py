@@ -215,7 +215,9 @@ def test_the_closed_loop_centres_the_target_without_oscillating(name: str,
 
 def test_the_gimbal_is_let_go_when_the_target_is_lost(boat1) -> None:
     """The boat hidden from 4 s on (a grey patch over it in the world): once the track state
-    leaves ``tracking``, one zero-rate command, then none, and the gimbal stops."""
+    leaves ``tracking``, one zero-rate command, then none, and the gimbal stops. ARCF-H with
+    its search on, so that nothing is learnt while the boat is hidden (as shipped it learns
+    every frame, and may learn the patch as its target)."""
     from arcf.loadtools.gimbalsim import run_follow
 
     gt = np.asarray(boat1.groundtruth, dtype=float)
@@ -229,7 +231,8 @@ def test_the_gimbal_is_let_go_when_the_target_is_lost(boat1) -> None:
             int(max(0, x - 1 - w / 2)):int(x - 1 + 1.5 * w)] = 128
         return out
 
-    run = run_follow(boat1, rate_hz=10, seconds=8, world_edit=hide)
+    run = run_follow(boat1, rate_hz=10, seconds=8, world_edit=hide,
+                     overrides={"state.reacquire": True})
     first = next(k for k, s in enumerate(run.state) if k > 0 and s != "tracking")
     assert run.t[first] >= 4.0  # flagged after the boat was hidden, not before
     assert all(s != "tracking" for s in run.state[first:])  # hidden to the end

@@ -299,9 +299,12 @@ def test_a_ground_station_tracks_through_the_mavlink_camera(rig: dict[str, Any])
     assert all(s.tracking_status & mav.CAMERA_TRACKING_STATUS_FLAGS_ACTIVE
                or s.tracking_status == mav.CAMERA_TRACKING_STATUS_FLAGS_ERROR for s in status)
     boxed = [s for s in status if s.target_data == mav.CAMERA_TRACKING_TARGET_DATA_IN_STATUS]
-    # without a box, only a stale one (no result for stale_after_s: a stalled machine)
-    assert all(_no_box(s) for s in status
-               if s.target_data != mav.CAMERA_TRACKING_TARGET_DATA_IN_STATUS)
+    # without a box: a stale one (no result for stale_after_s: a stalled machine), or one sent
+    # before the adapter had the session's first result; never target data without a box
+    assert all(_no_box(s) or (s.target_data == TARGET_DATA_NONE and np.isnan(s.rec_top_x))
+               for s in status if s.target_data != mav.CAMERA_TRACKING_TARGET_DATA_IN_STATUS)
+    assert all(np.isfinite([s.rec_top_x, s.rec_bottom_y]).all() for s in status
+               if s.target_data == mav.CAMERA_TRACKING_TARGET_DATA_IN_STATUS)
     assert boxed
     # each status's rectangle is one of the session's published boxes (float32 on the wire)
     boxes = np.array([r.box for r in list(results) if r.session_id == session
