@@ -22,6 +22,7 @@
 #include <Python.h>
 
 #include <setjmp.h>
+#include <stdint.h>
 #include <stdio.h>
 #include <string.h>
 
@@ -96,6 +97,13 @@ static int decode(struct jpeg_decompress_struct *cinfo, struct region_error *err
     cinfo->dct_method = JDCT_ISLOW;
     cinfo->do_fancy_upsampling = TRUE;
     size_t width = cinfo->image_width, height = cinfo->image_height;
+    /* libjpeg bounds both sides by 65500; the product is checked anyway, so that no size_t
+     * can wrap into a small buffer's size */
+    if (width == 0 || height == 0 || width > SIZE_MAX / height / (size_t)channels) {
+        jpeg_destroy_decompress(cinfo);
+        res->failure = "the picture's size overflows";
+        return -1;
+    }
     if (out_size != width * height * (size_t)channels) {
         jpeg_destroy_decompress(cinfo);
         res->failure = "the buffer is not the picture's size";

@@ -25,7 +25,7 @@ def main(argv: list[str]) -> int:
     mapping = {name.replace(".", "/") + "/": folder + "/"
                for name, folder in package_dirs().items() if name != "arcf"}
     # scripts beside the package, which import it as installed
-    scripts = [str(p) for folder in ("benchmarks", "tools", "docs/hooks")
+    scripts = [str(p) for folder in ("benchmarks", "tools", "fuzz", "docs/hooks")
                for p in sorted((ROOT / folder).glob("*.py"))]
     mapping[str(ROOT) + "/"] = ""
     with tempfile.TemporaryDirectory(prefix="arcf-typecheck-") as tmp:
