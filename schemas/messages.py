@@ -149,6 +149,10 @@ class ErrorCode(str, Enum):
     IMAGE_TOO_LARGE = "image_too_large"
     #: A service-wide cap (e.g. ``max_sessions``) would be exceeded.
     LIMIT_EXCEEDED = "limit_exceeded"
+    #: A stream whose frames were being processed when worker processes died
+    #: ``quarantine_after`` times: its sessions end, and starts on it are refused for
+    #: ``quarantine_s``.
+    QUARANTINED = "quarantined"
     INTERNAL = "internal"
 
 

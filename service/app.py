@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import logging
 import multiprocessing as mp
+import multiprocessing.connection as mp_connection
 import os
 import signal
 import sys
@@ -24,6 +25,7 @@ from arcf import __version__
 
 from . import multiproc
 from .settings import LOG_FORMAT, ServiceSettings, add_arguments, from_arguments
+from .supervision import InFlight, death_cause
 
 log = logging.getLogger(__name__)
 
@@ -66,8 +68,11 @@ class Service:
         self.worker_stop = ctx.Event()
         self.queues = [ctx.Queue() for _ in range(s.workers)]
         self.responses = ctx.Queue()
+        #: per worker, the stream whose frame it is processing (read when it dies)
+        self.inflight = [InFlight(ctx) for _ in range(s.workers)]
         self.procs = [ctx.Process(target=worker_main, args=(k, s, self.queues[k],
-                                                              self.responses, self.worker_stop),
+                                                              self.responses, self.worker_stop,
+                                                              self.inflight[k]),
                                   name=f"arcf-worker-{k}") for k in range(s.workers)]
         for p in self.procs:
             p.start()
@@ -87,6 +92,15 @@ class Service:
         # the station is gone (see ControlPlane.client_token)
         self.clients = self.session.liveliness().declare_subscriber(
             self.keys.all_client_tokens(), client_token, history=True)
+
+        def worker_token(sample: Any) -> None:
+            if sample.kind == zenoh.SampleKind.PUT:  # a replacement is ready for sessions
+                worker = str(sample.key_expr).rsplit("/", 1)[-1]
+                if worker.isdigit():
+                    self.control.worker_ready(int(worker))
+
+        self.worker_tokens = self.session.liveliness().declare_subscriber(
+            self.keys.workers_of_instance(s.instance_id), worker_token)
         # Frames of streams nobody tracks: counted, and answered with a rate-limited error.
         # The callback only reads the key; it never touches the payload.
         # when each untracked stream was last told; bounded, so that frames on endless
@@ -171,7 +185,9 @@ class Service:
         from . import metrics
 
         memory = metrics.MEMORY.labels(process="main")
-        while not self._stop.wait(0.2):
+        while not self._stop.is_set():
+            # a worker's end wakes this at once (its sentinel), a stop request within 0.2 s
+            mp_connection.wait([p.sentinel for p in self.procs], timeout=0.2)
             memory.set(metrics.resident_bytes())
             for k, p in enumerate(self.procs):
                 if not p.is_alive() and not self._stop.is_set():
@@ -180,8 +196,10 @@ class Service:
     def _replace_worker(self, k: int) -> None:
         """Supervision: a dead worker is replaced at once. Its sessions (their trackers lived in
         that process) resume on a live worker from their last published box, like sessions of
-        a dead instance; their streams are told on their error keys, and the first result
-        after says ``resumed``."""
+        a dead instance (on the replacement once it is ready, when no other worker lives);
+        their streams are told on their error keys, and the first result after says
+        ``resumed``. The stream whose frame the worker was processing gets a strike; at
+        ``quarantine_after`` strikes its sessions end instead (code ``quarantined``)."""
         import zenoh
 
         from arcf.schemas import ErrorCode, ErrorMessage, encode
@@ -190,26 +208,44 @@ class Service:
         from .worker import worker_main
 
         old = self.procs[k]
-        log.error("worker %d died (exit code %s); starting a replacement", k, old.exitcode)
+        cause = death_cause(old.exitcode)
+        culprit = self.inflight[k].read()
+        self.inflight[k].clear()
+        log.error("worker %d died (%s%s); starting a replacement", k, cause,
+                  f", on a frame of stream {culprit}" if culprit else ", between frames")
         metrics.ERRORS.labels(kind="worker_died").inc()
+        metrics.WORKER_DEATHS.labels(cause=cause).inc()
         if old.pid:
             metrics.mark_dead(old.pid)
         ctx = mp.get_context("spawn")
         queue = ctx.Queue()  # the old one may be locked by the killed process
+        lost, quarantined = self.control.worker_replaced(k, queue, culprit)
         self.queues[k] = queue
-        proc = ctx.Process(target=worker_main, args=(k, self.settings, queue, self.responses,
-                                                     self.worker_stop), name=f"arcf-worker-{k}")
-        proc.start()
-        self.procs[k] = proc
-        for rec in self.control.worker_replaced(k, queue):
+        for rec in lost:
+            if quarantined and rec.stream_id == culprit:
+                self.cluster.withdraw(rec.session_id)  # ended, not resumed
+                code = ErrorCode.QUARANTINED
+                message = (f"worker {k} died ({cause}) on a frame of stream {culprit}, the "
+                           f"{self.control.strikes.after}th time: session {rec.session_id} "
+                           f"ended; starts on the stream are refused for "
+                           f"{self.settings.quarantine_s:g} s")
+            else:
+                code = ErrorCode.INTERNAL
+                message = (f"worker {k} died ({cause}); session {rec.session_id} resumes "
+                           "from its last published box")
             self.session.put(
                 self.keys.errors(rec.stream_id),
-                encode(ErrorMessage(code=ErrorCode.INTERNAL, stream_id=rec.stream_id,
-                                    session_id=rec.session_id,
-                                    message=f"worker {k} died; session {rec.session_id} "
-                                    "resumes from its last published box")),
+                encode(ErrorMessage(code=code, stream_id=rec.stream_id,
+                                    session_id=rec.session_id, message=message)),
                 congestion_control=zenoh.CongestionControl.DROP)
         self.cluster.request_rebalance()  # the registry still has them: they start again
+        # started after the sessions are on their way to a live worker: its start-up (imports,
+        # kernels) must not delay them
+        proc = ctx.Process(target=worker_main, args=(k, self.settings, queue, self.responses,
+                                                     self.worker_stop, self.inflight[k]),
+                           name=f"arcf-worker-{k}")
+        proc.start()
+        self.procs[k] = proc
 
     def close(self) -> None:
         from . import metrics
@@ -235,6 +271,7 @@ class Service:
             q.join_thread()
         if self.watcher is not None:
             self.watcher.undeclare()
+        self.worker_tokens.undeclare()
         self.queryable.undeclare()
         self.session.close()
         if self.http is not None:

@@ -64,6 +64,7 @@ from .commands import (
     StartSession,
     StopSession,
 )
+from .supervision import Strikes
 
 __all__ = ["ControlPlane", "SessionRecord", "owner", "place"]
 
@@ -142,6 +143,11 @@ class ControlPlane:
         # Requests and rebalancing change what runs here; one at a time, or a rebalance could
         # see a session admitted but not yet in the registry and stop it as withdrawn.
         self.op_lock = threading.RLock()
+        #: crashes attributed to streams, and the streams quarantined for them
+        self.strikes = Strikes(getattr(settings, "quarantine_after", 2),
+                               getattr(settings, "quarantine_s", 600.0))
+        #: replacement workers not ready yet: sessions go to a live worker meanwhile
+        self.starting: set[int] = set()
 
     def _pump(self) -> None:
         """Hand workers' confirmations to the requests waiting for them. Never blocks on a
@@ -268,15 +274,51 @@ class ControlPlane:
         if self.cluster is not None:
             self.cluster.request_rebalance()
 
-    def worker_replaced(self, worker: int, new_queue: Any) -> list[SessionRecord]:
-        """A worker died and a new one took its place: its sessions are gone (their trackers
-        lived in that process). Forget them and return them so their streams can be told."""
+    def worker_replaced(self, worker: int, new_queue: Any, culprit: str | None = None
+                        ) -> tuple[list[SessionRecord], bool]:
+        """A worker died and a new one is starting in its place: its sessions are gone (their
+        trackers lived in that process). Forget them and return them, so their streams can
+        be told, with whether ``culprit`` (the stream whose frame the worker was processing)
+        is now quarantined. Until :meth:`worker_ready`, new and resumed sessions go to the
+        live workers."""
+        from . import metrics
+
+        quarantined = False
         with self.lock:
             lost = [r for r in self.sessions.values() if r.worker == worker]
             for r in lost:
                 del self.sessions[r.session_id]
             self.queues = [*self.queues[:worker], new_queue, *self.queues[worker + 1:]]
-        return lost
+            self.starting.add(worker)
+            if culprit is not None:
+                metrics.CRASH_STRIKES.inc()
+                quarantined = self.strikes.strike(culprit)
+        if quarantined:
+            metrics.QUARANTINES.inc()
+            log.error("stream %s quarantined: %d worker crashes on its frames within %g s",
+                      culprit, self.strikes.after, self.strikes.window_s)
+        return lost, quarantined
+
+    def worker_ready(self, worker: int) -> None:
+        """A replacement worker's liveliness token is up: it takes sessions again (those
+        waiting for a live worker are taken over now)."""
+        with self.lock:
+            was_starting = worker in self.starting
+            self.starting.discard(worker)
+        if was_starting and self.cluster is not None:
+            self.cluster.request_rebalance()
+
+    def _any_worker_live(self) -> bool:
+        with self.lock:
+            return len(self.starting) < len(self.queues)
+
+    def quarantine_reason(self, stream_id: str) -> str | None:
+        """Why starts on ``stream_id`` are refused, or None when they are not."""
+        left = self.strikes.quarantined(stream_id)
+        if not left:
+            return None
+        return (f"stream {stream_id!r} is quarantined for {left:.0f} s more: worker processes "
+                f"died {self.strikes.after} times while processing its frames")
 
     def tracked_streams(self) -> set[str]:
         """Streams with a session anywhere (on any instance)."""
@@ -310,7 +352,12 @@ class ControlPlane:
             local = dict(self.sessions)
         for sid, spec in specs.items():
             mine = self.cluster.mine(spec.stream_id)
-            if mine and sid not in local:
+            if mine and sid not in local and self.quarantine_reason(spec.stream_id):
+                self.cluster.withdraw(sid)  # not resumed: its frames crash workers
+                log.info("session %s of quarantined stream %s withdrawn", sid, spec.stream_id)
+            elif mine and sid not in local and not self._any_worker_live():
+                continue  # every worker is starting: taken when one is ready (worker_ready)
+            elif mine and sid not in local:
                 box, frame_seq, resumed = self.cluster.resume_point(sid)
                 try:
                     w = self._admit(sid, spec.stream_id, spec.preset, spec.client_id)
@@ -378,6 +425,11 @@ class ControlPlane:
                 load = [0] * len(self.queues)
                 for _stream, worker in {(r.stream_id, r.worker) for r in self.sessions.values()}:
                     load[worker] += 1
+                if len(self.starting) < len(self.queues):
+                    # a replacement still starting would hold the session for seconds: a
+                    # live worker takes it (counted as fully loaded, it is chosen last)
+                    for worker in self.starting:
+                        load[worker] = max(load) + len(self.sessions) + 1
                 w = place(stream_id, load)
             self.sessions[sid] = SessionRecord(sid, stream_id, preset, w, time.time(),
                                                client_id)
@@ -491,6 +543,9 @@ class ControlPlane:
             preset_params(req.preset, **dict(req.overrides))
         except ARCFError as exc:
             raise _Refused(ErrorCode.INVALID_PARAMETER, str(exc)) from exc
+        quarantined = self.quarantine_reason(req.stream_id)
+        if quarantined is not None:
+            raise _Refused(ErrorCode.QUARANTINED, quarantined)
         sid = req.session_id or uuid.uuid4().hex
         if self.cluster is not None and self.cluster.spec(sid) is not None:
             raise _Refused(ErrorCode.INVALID_REQUEST, f"session {sid!r} already exists")

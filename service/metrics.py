@@ -61,6 +61,16 @@ TAKEOVERS = Counter("arcf_sessions_taken_over_total",
                     "Sessions this instance took over from another (failover or rebalance)")
 HANDOVERS = Counter("arcf_sessions_handed_over_total",
                     "Sessions this instance handed to another (an instance joined)")
+WORKER_DEATHS = Counter(
+    "arcf_worker_deaths_total",
+    "Worker processes that died and were replaced, by cause (SIGSEGV, SIGKILL: also the "
+    "kernel's out-of-memory killer, SIGABRT, exit <code>)", ["cause"])
+CRASH_STRIKES = Counter(
+    "arcf_stream_crash_strikes_total",
+    "Worker deaths that happened while a frame of a stream was being processed (a strike "
+    "against that stream); quarantine_after of them within quarantine_s quarantine it")
+QUARANTINES = Counter("arcf_streams_quarantined_total",
+                      "Streams quarantined: they were in flight when workers died too often")
 STREAMS = Gauge("arcf_active_streams", "Streams with at least one session",
                 multiprocess_mode="livesum")
 SESSIONS = Gauge("arcf_active_sessions", "Tracking sessions", multiprocess_mode="livesum")

@@ -124,6 +124,14 @@ class ServiceSettings:
         "a worker whose resident memory passes this (checked every second) resets its video "
         "decoders, each stream resuming at its next keyframe (decode_error, resync cause "
         "'memory'), and returns its freed memory to the system; 0: off"))
+    quarantine_after: int = field(default=2, metadata=_about(
+        "a stream whose frames were being processed when this many worker processes died "
+        "(a crash in a decoder, the out-of-memory killer) within quarantine_s is quarantined: "
+        "its sessions end instead of resuming, and starts on it are refused (code "
+        "quarantined) for quarantine_s; 0: never"))
+    quarantine_s: float = field(default=600.0, metadata=_about(
+        "the window in which a stream's worker crashes count, and how long its quarantine "
+        "lasts"))
     metrics_host: str = field(default="127.0.0.1",
                               metadata=_about("Prometheus endpoint address"))
     metrics_port: int = field(default=9464, metadata=_about(
@@ -168,6 +176,8 @@ class ServiceSettings:
                 and self.session_budget_ms > 0):
             raise ValueError("session_idle_s and session_budget_ms must be > 0, "
                              "client_grace_s >= 0")
+        if self.quarantine_after < 0 or not self.quarantine_s > 0:
+            raise ValueError("quarantine_after must be >= 0 (0: never) and quarantine_s > 0")
         if self.worker_max_rss_mb < 0:
             raise ValueError("worker_max_rss_mb must be >= 0 (0: off)")
         if not 0 <= self.worker_budget <= 1:

@@ -52,6 +52,7 @@ from .foxglove import parse_compressed_video
 from .intake import Inbox, Numbering, Verdict
 from .settings import LOG_FORMAT
 from .stages import StageClock
+from .supervision import InFlight
 from .video import CODECS, Decoded, Outcome, StreamDecoder
 
 log = logging.getLogger(__name__)
@@ -195,13 +196,16 @@ def _count_extent(metrics: Any, image: np.ndarray | RegionFrame) -> None:
 
 class Worker:
     def __init__(self, index: int, settings: Any, commands: Any, responses: Any,
-                 stop: Any) -> None:
+                 stop: Any, inflight: InFlight | None = None) -> None:
         import zenoh
 
         from . import metrics  # after the launcher set PROMETHEUS_MULTIPROC_DIR
         from .transport import open_session
 
         self.index = index
+        #: the stream whose frame is being processed, for the launcher to read if this
+        #: process dies on it (:mod:`arcf.service.supervision`)
+        self.inflight = inflight
         self.settings = settings
         self.commands = commands
         self.responses = responses
@@ -939,12 +943,17 @@ class Worker:
                         continue
                     worked = True
                     t0 = time.perf_counter()
+                    if self.inflight is not None:
+                        self.inflight.set(stream.stream_id)
                     try:
                         self._process(stream, *item)
                     except Exception:  # a bug must not take the worker (and its streams) down
                         log.exception("worker %d: unexpected error on stream %s", self.index,
                                       stream.stream_id)
                         self.metrics.ERRORS.labels(kind=ErrorCode.INTERNAL.value).inc()
+                    finally:
+                        if self.inflight is not None:
+                            self.inflight.clear()
                     spent = time.perf_counter() - t0
                     busy_s += spent
                     if spent > 0.5:
@@ -1004,7 +1013,8 @@ def _die_with_parent() -> None:
             log.debug("prctl unavailable", exc_info=True)
 
 
-def worker_main(index: int, settings: Any, commands: Any, responses: Any, stop: Any) -> None:
+def worker_main(index: int, settings: Any, commands: Any, responses: Any, stop: Any,
+                inflight: InFlight | None = None) -> None:
     """Entry point of a spawned worker process."""
     import signal
 
@@ -1014,7 +1024,7 @@ def worker_main(index: int, settings: Any, commands: Any, responses: Any, stop: 
     logging.basicConfig(level=logging.INFO, format=LOG_FORMAT)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the launcher decides when workers stop
     cv2.setNumThreads(1)
-    worker = Worker(index, settings, commands, responses, stop)
+    worker = Worker(index, settings, commands, responses, stop, inflight)
     try:
         worker.run()
     finally:

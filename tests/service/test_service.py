@@ -376,6 +376,8 @@ def test_a_killed_worker_is_replaced_and_its_sessions_resume(frames) -> None:
                 s.undeclare()
         assert svc.metric("arcf_errors_total") >= 1
         assert svc.metric("arcf_sessions_taken_over_total") == 1
+        causes = by_label(fetch(svc.metrics_url), "arcf_worker_deaths_total", "cause")
+        assert causes == {"SIGKILL": 1}
     finally:
         assert svc.stop() == 0
 
