@@ -43,6 +43,7 @@ from collections.abc import Sequence
 from http import HTTPStatus
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from importlib import resources
+from pathlib import Path
 from typing import Any
 
 import cv2
@@ -359,7 +360,7 @@ class LiveView:
                  max_fps: float = 5.0, max_width: int = 960,
                  video_key: str | None = DEFAULT_VIDEO_KEY, max_viewers: int = 16,
                  max_pixels: int = 4096 * 2160, allow_control: bool = False,
-                 allowed_hosts: Sequence[str] = ()) -> None:
+                 allowed_hosts: Sequence[str] = (), control_token: str | None = None) -> None:
         if not (0 < max_fps <= 30 and 64 <= max_width <= 4096 and max_viewers >= 1
                 and max_pixels >= 1):
             raise ValueError("max_fps must be in (0, 30], max_width in [64, 4096], "
@@ -376,7 +377,7 @@ class LiveView:
         self.counts: dict[str, int] = {}
         self._status: tuple[float, bytes] = (0.0, b"")
         self.control = ViewControl(client, enabled=allow_control, allowed_hosts=allowed_hosts,
-                                   count=self.count)
+                                   count=self.count, token=control_token)
         view = self
 
         class Handler(BaseHTTPRequestHandler):
@@ -403,6 +404,12 @@ class LiveView:
     def url(self) -> str:
         host = str(self.server.server_address[0])
         return f"http://{'127.0.0.1' if host in ('0.0.0.0', '') else host}:{self.port}/"
+
+    @property
+    def control_url(self) -> str:
+        """The page's address with the control token in its fragment (what the operator
+        opens to control tracking; ``url`` alone only watches)."""
+        return f"{self.url}#token={self.control.token}"
 
     # ------------------------------------------------------------------ watching
     def count(self, reason: str) -> None:
@@ -501,7 +508,8 @@ class LiveView:
             self.count("slow_viewer")
             req.close_connection = True
             return
-        headers = {k: req.headers.get(k, "") for k in ("Host", "Content-Type")}
+        headers = {k: req.headers.get(k, "") for k in ("Host", "Content-Type",
+                                                        "Authorization")}
         if "Origin" in req.headers:
             headers["Origin"] = req.headers["Origin"]
         reply = self.control.handle(action, target, headers, body)
@@ -695,11 +703,22 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--allow-control", action="store_true",
                     help="let the page start, re-initialise and stop sessions (drawing a box "
                     "on the video); off by default: whoever reaches the page controls tracking")
+    ap.add_argument("--control-token-file", type=Path, metavar="PATH",
+                    help="the control token (its first line, at least 16 characters), for a "
+                    "deployment that hands it to its operators; default: a random one, printed "
+                    "with the page's address")
     ap.add_argument("--allow-host", action="append", default=[], metavar="NAME",
                     help="a host name the page may be reached by for control (repeatable; IP "
                     "addresses and localhost always may)")
     add_service_arguments(ap)
     args = ap.parse_args(argv)
+    token = None
+    if args.control_token_file is not None:
+        try:
+            token = args.control_token_file.read_text().splitlines()[0].strip()
+        except (OSError, IndexError) as exc:
+            raise SystemExit(f"arcf-view: no control token in {args.control_token_file}: "
+                             f"{exc}") from exc
     stop = prepare()
     client = wait_for_service(args, log, stop)
     if client is None:
@@ -709,11 +728,17 @@ def main(argv: Sequence[str] | None = None) -> int:
             view = LiveView(client, args.host, args.port, max_fps=args.max_fps,
                             max_width=args.max_width, video_key=args.video_key or None,
                             max_viewers=args.max_viewers, max_pixels=args.max_pixels,
-                            allow_control=args.allow_control, allowed_hosts=args.allow_host)
+                            allow_control=args.allow_control, allowed_hosts=args.allow_host,
+                            control_token=token)
         except (OSError, ValueError) as exc:
             raise SystemExit(f"arcf-view: {exc}") from exc
+        if args.allow_control:
+            # the operator's link: the token rides in the fragment, which no server sees
+            print(f"arcf-view: open {view.control_url} to control tracking ({view.url} "
+                  "only watches)", flush=True)
         log.info("live view on %s (tracking control %s)", view.url,
-                 "on" if args.allow_control else "off: --allow-control turns it on")
+                 "on, with the token" if args.allow_control
+                 else "off: --allow-control turns it on")
         stop.wait()
         view.close()
     return 0

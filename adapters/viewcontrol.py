@@ -1,7 +1,15 @@
 """The live view's tracking control: start a session on a drawn box, re-initialise or stop one.
 
 It controls what the service tracks, so it is off unless the operator turns it on
-(``arcf-view --allow-control``) and a request must show that it comes from the view's own page:
+(``arcf-view --allow-control``), a request must carry the view's credential, and it must show
+that it comes from the view's own page:
+
+- **Credential**: ``Authorization: Bearer <token>``, the view's control token (random at each
+  start unless the operator gives one with ``--control-token-file``). The view prints its
+  address with the token in the fragment (``http://host:8090/#token=...``): the page keeps it
+  for the tab and sends it with every control request; a fragment is never sent to a server,
+  so it stays out of logs and ``Referer`` headers. Whoever reaches the page without it watches
+  but cannot control.
 
 - **Host**: the request's ``Host`` is an IP address, ``localhost``, or a name the operator
   allowed (``--allow-host``). A web page elsewhere that rebinds its own name to this machine's
@@ -21,10 +29,12 @@ Sessions started here belong to the view's client: they end (after the service's
 
 from __future__ import annotations
 
+import hmac
 import ipaddress
 import json
 import logging
 import math
+import secrets
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from http import HTTPStatus
@@ -39,6 +49,8 @@ log = logging.getLogger(__name__)
 DEFAULT_PRESET = "arcf-hc"
 #: the largest side a box may have, pixels (a 16K frame's)
 MAX_SIDE = 16384.0
+#: the shortest control token an operator may give (a generated one has 32 characters)
+MIN_TOKEN = 16
 
 
 @dataclass(frozen=True)
@@ -76,9 +88,13 @@ class ViewControl:
     """Checks and carries out the page's control requests through the view's client."""
 
     def __init__(self, client: TrackingClient, *, enabled: bool,
-                 allowed_hosts: Sequence[str] = (), count: Callable[[str], None] | None = None
-                 ) -> None:
+                 allowed_hosts: Sequence[str] = (), count: Callable[[str], None] | None = None,
+                 token: str | None = None) -> None:
         self.client, self.enabled = client, enabled
+        if token is not None and len(token) < MIN_TOKEN:
+            raise ValueError(f"a control token has at least {MIN_TOKEN} characters")
+        #: the credential a control request must carry (``Authorization: Bearer``)
+        self.token = token if token is not None else secrets.token_urlsafe(24)
         self.allowed_hosts = {"localhost", *(h.lower() for h in allowed_hosts)}
         self._count = count or (lambda reason: None)
         self._presets: list[str] | None = None
@@ -124,6 +140,12 @@ class ViewControl:
             if parts.scheme != "http" or parts.netloc.lower() != host.lower():
                 raise Refused(HTTPStatus.FORBIDDEN, f"a page from {origin!r} may not control "
                               "this view", "bad_origin")
+        scheme, _, given = (headers.get("Authorization") or "").partition(" ")
+        if scheme.lower() != "bearer" or not hmac.compare_digest(given.strip().encode(),
+                                                                  self.token.encode()):
+            raise Refused(HTTPStatus.UNAUTHORIZED, "tracking control needs the view's token: "
+                          "open the address arcf-view printed (it ends in #token=...)",
+                          "bad_credential")
         kind = (headers.get("Content-Type") or "").split(";")[0].strip().lower()
         if kind != "application/json":
             raise Refused(HTTPStatus.UNSUPPORTED_MEDIA_TYPE,

@@ -35,9 +35,10 @@ from arcf.schemas import Result
 from arcf.service.client import TrackingClient
 
 
-def post(url: str, body: dict) -> dict:
+def post(url: str, body: dict, token: str) -> dict:
     req = urllib.request.Request(url, data=json.dumps(body).encode(), method="POST",
-                                 headers={"Content-Type": "application/json"})
+                                 headers={"Content-Type": "application/json",
+                                          "Authorization": f"Bearer {token}"})
     with urllib.request.urlopen(req, timeout=30) as reply:
         return json.loads(reply.read())
 
@@ -82,7 +83,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                 results = station.results("cam", callback=heard)
                 t0 = time.perf_counter()
                 sid = post(view.url + "api/streams/cam/sessions",
-                           {"box": box, "preset": args.preset, "frame_seq": shown})["session_id"]
+                           {"box": box, "preset": args.preset, "frame_seq": shown},
+                           view.control.token)["session_id"]
                 times["reply"].append(time.perf_counter() - t0)
                 deadline = time.monotonic() + 30
                 while not got and time.monotonic() < deadline:
@@ -95,7 +97,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                         watch.changed.wait(timeout=0.5)
                 times["first box drawn"].append(time.perf_counter() - t0)
                 results.close()
-                post(view.url + f"api/sessions/{sid}/stop", {})
+                post(view.url + f"api/sessions/{sid}/stop", {}, view.control.token)
                 time.sleep(0.5)
         finally:
             events.close()

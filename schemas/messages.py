@@ -149,6 +149,9 @@ class ErrorCode(str, Enum):
     IMAGE_TOO_LARGE = "image_too_large"
     #: A service-wide cap (e.g. ``max_sessions``) would be exceeded.
     LIMIT_EXCEEDED = "limit_exceeded"
+    #: A ``stop`` or ``reinit`` without the session's control token (the one its ``start``
+    #: was acknowledged with), where the service's ``session_control`` is ``owner``.
+    FORBIDDEN = "forbidden"
     #: A stream whose frames were being processed when worker processes died
     #: ``quarantine_after`` times: its sessions end, and starts on it are refused for
     #: ``quarantine_s``.
@@ -231,6 +234,8 @@ class ResultStatus(str, Enum):
 # ---------------------------------------------------------------------------------------------
 
 Id = Annotated[StrictStr, Field(pattern=ID_PATTERN)]
+#: A session's control token: a random URL-safe string (``secrets.token_urlsafe``)
+ControlToken = Annotated[StrictStr, Field(pattern=r"^[A-Za-z0-9_-]{16,128}$")]
 NonNegInt = Annotated[int, Field(strict=True, ge=0, le=INT64_MAX)]
 PositiveInt = Annotated[int, Field(strict=True, ge=1, le=INT64_MAX)]
 #: Nanoseconds since the Unix epoch.
@@ -508,6 +513,9 @@ class ReinitRequest(Message):
         "sessions it left behind, under its new liveliness token): from now on the session "
         "ends when this token is gone longer than the grace period. Absent: unchanged.",
     )
+    control_token: ControlToken | None = Field(
+        default=None, description="The session's control token, from its start's ack: "
+        "required where the service's session_control is 'owner' (the default).")
 
 
 class StopRequest(Message):
@@ -517,6 +525,9 @@ class StopRequest(Message):
 
     request_id: Id = Field(description="Client-chosen; echoed in the reply.")
     session_id: Id
+    control_token: ControlToken | None = Field(
+        default=None, description="The session's control token, from its start's ack: "
+        "required where the service's session_control is 'owner' (the default).")
 
 
 class StatusRequest(Message):
@@ -539,6 +550,10 @@ class Ack(Reply):
     session_id: Id | None = None
     stream_id: Id | None = None
     message: StrictStr
+    control_token: ControlToken | None = Field(
+        default=None, description="In the ack of a start only: the session's control token, "
+        "which its stop and reinit requests carry. The reply goes to the requester alone; "
+        "keep it as a credential (a station that restarts and adopts its sessions needs it).")
 
 
 class ErrorMessage(Reply):
@@ -645,6 +660,9 @@ class SessionSpec(Message):
     box: Box
     frame_seq: NonNegInt | None = None
     client_id: Id | None = None
+    control_token_sha256: Annotated[StrictStr, Field(pattern=r"^[0-9a-f]{64}$")] | None = Field(
+        default=None, description="SHA-256 of the session's control token (hex), so that any "
+        "instance can check a stop or reinit; the token itself is never replicated.")
     last_seq: NonNegInt | None = Field(default=None, description="Frame of the last result.")
     last_box: Box | None = Field(default=None, description="Box of the last result.")
 

@@ -144,6 +144,9 @@ class TrackingClient:
         self._announced: dict[str, Any] = {}
         self._seq: dict[str, int] = {}
         self._lock = threading.Lock()
+        #: the control token of each session this client started (or was given), which its
+        #: stop and reinit carry: persist it to adopt the sessions after a restart
+        self.control_tokens: dict[str, str] = {}
 
     # ------------------------------------------------------------------ frames
     def publish_frame(
@@ -225,26 +228,42 @@ class TrackingClient:
     def start(self, stream_id: str, box: Sequence[float], preset: str = "arcf-hc", *,
               overrides: dict[str, Any] | None = None, session_id: str | None = None,
               frame_seq: int | None = None, timeout: float = 5.0) -> Ack:
-        return self._request(StartRequest(
+        """Start a session. Its ack carries the session's control token, kept in
+        :attr:`control_tokens`: this client's :meth:`stop` and :meth:`reinit` send it."""
+        ack = self._request(StartRequest(
             request_id=uuid.uuid4().hex, stream_id=stream_id, session_id=session_id,
             box=list(box), preset=preset, overrides=overrides or {}, frame_seq=frame_seq,
             client_id=self.client_id if self._token is not None else None), timeout)
+        if ack.session_id is not None and ack.control_token is not None:
+            self.control_tokens[ack.session_id] = ack.control_token
+        return ack
 
     def reinit(self, session_id: str, box: Sequence[float], *, frame_seq: int | None = None,
-               adopt: bool = False, timeout: float = 5.0) -> Ack:
+               adopt: bool = False, control_token: str | None = None,
+               timeout: float = 5.0) -> Ack:
         """``adopt``: this station takes the session over, so that its lifetime follows this
         client's liveliness token from now on (a restarted station adopting the sessions its
-        previous run left behind, found with :meth:`status`). A station with a stable
-        ``client_id`` needs no adoption: its sessions are already its own."""
+        previous run left behind, found with :meth:`status`, with the control tokens it
+        kept). A station with a stable ``client_id`` needs no adoption: its sessions are
+        already its own. ``control_token``: the session's, where this client did not start
+        it (kept for the session from then on)."""
         if adopt and self._token is None:
             raise ValueError("adopt needs a client that ties its sessions (tie_sessions=True)")
+        if control_token is not None:
+            self.control_tokens[session_id] = control_token
         return self._request(ReinitRequest(
             request_id=uuid.uuid4().hex, session_id=session_id, box=list(box),
-            frame_seq=frame_seq, client_id=self.client_id if adopt else None), timeout)
+            frame_seq=frame_seq, client_id=self.client_id if adopt else None,
+            control_token=self.control_tokens.get(session_id)), timeout)
 
-    def stop(self, session_id: str, timeout: float = 5.0) -> Ack:
-        return self._request(StopRequest(request_id=uuid.uuid4().hex, session_id=session_id),
-                             timeout)
+    def stop(self, session_id: str, *, control_token: str | None = None,
+             timeout: float = 5.0) -> Ack:
+        """Stop a session, with its control token (this client's own, or ``control_token``)."""
+        ack = self._request(StopRequest(
+            request_id=uuid.uuid4().hex, session_id=session_id,
+            control_token=control_token or self.control_tokens.get(session_id)), timeout)
+        self.control_tokens.pop(session_id, None)
+        return ack
 
     def presets(self, timeout: float = 5.0) -> Presets:
         """The service's presets and what each override accepts."""

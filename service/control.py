@@ -15,7 +15,9 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import hmac
 import logging
+import secrets
 import threading
 import time
 import uuid
@@ -104,6 +106,9 @@ class SessionRecord:
     worker: int
     started: float
     client_id: str | None = None
+    #: SHA-256 (hex) of the session's control token; None for a session registered without
+    #: one (by an instance of an earlier version)
+    token_sha256: str | None = None
 
 
 class ControlPlane:
@@ -360,7 +365,8 @@ class ControlPlane:
             elif mine and sid not in local:
                 box, frame_seq, resumed = self.cluster.resume_point(sid)
                 try:
-                    w = self._admit(sid, spec.stream_id, spec.preset, spec.client_id)
+                    w = self._admit(sid, spec.stream_id, spec.preset, spec.client_id,
+                                    spec.control_token_sha256)
                     self._forward(w, StartSession(
                         session_id=sid, stream_id=spec.stream_id, box=box,
                         preset=spec.preset, overrides=dict(spec.overrides), frame_seq=frame_seq,
@@ -404,7 +410,7 @@ class ControlPlane:
                 log.error("could not stop session %s: %s", session_id, exc.message)
 
     def _admit(self, sid: str, stream_id: str, preset: str,
-               client_id: str | None = None) -> int:
+               client_id: str | None = None, token_sha256: str | None = None) -> int:
         """Record a local session and choose its worker: the stream's worker if it has one
         (every session of a stream on one worker: the frame is decoded once), else the least
         loaded."""
@@ -432,7 +438,7 @@ class ControlPlane:
                         load[worker] = max(load) + len(self.sessions) + 1
                 w = place(stream_id, load)
             self.sessions[sid] = SessionRecord(sid, stream_id, preset, w, time.time(),
-                                               client_id)
+                                               client_id, token_sha256)
             if client_id is not None and client_id not in self.live_clients:
                 # a token named but not seen (yet): it has the grace to appear
                 self.client_deadlines.setdefault(
@@ -549,7 +555,9 @@ class ControlPlane:
         sid = req.session_id or uuid.uuid4().hex
         if self.cluster is not None and self.cluster.spec(sid) is not None:
             raise _Refused(ErrorCode.INVALID_REQUEST, f"session {sid!r} already exists")
-        w = self._admit(sid, req.stream_id, req.preset, req.client_id)
+        token = secrets.token_urlsafe(24)
+        digest = _sha256(token)
+        w = self._admit(sid, req.stream_id, req.preset, req.client_id, digest)
         try:
             self._forward(w, StartSession(
                 session_id=sid, stream_id=req.stream_id, box=req.box, preset=req.preset,
@@ -562,9 +570,10 @@ class ControlPlane:
             self.cluster.publish(SessionSpec(
                 session_id=sid, stream_id=req.stream_id, preset=req.preset,
                 overrides=dict(req.overrides), box=req.box, frame_seq=req.frame_seq,
-                client_id=req.client_id))
+                client_id=req.client_id, control_token_sha256=digest))
         return Ack(request_id=req.request_id, session_id=sid, stream_id=req.stream_id,
-                   message=f"session started on worker {w} (subscribed, tracker ready)")
+                   message=f"session started on worker {w} (subscribed, tracker ready)",
+                   control_token=token)
 
     def _record(self, session_id: str) -> SessionRecord:
         with self.lock:
@@ -576,8 +585,22 @@ class ControlPlane:
             raise _Refused(ErrorCode.UNKNOWN_SESSION, f"no session {session_id!r}")
         return rec
 
+    def _authorize(self, rec: SessionRecord, token: str | None, action: str) -> None:
+        """Under ``session_control = "owner"``, only the holder of the session's control
+        token may stop or re-initialise it (docs/service-design.md#who-may-do-what)."""
+        if getattr(self.settings, "session_control", "owner") == "open":
+            return
+        if rec.token_sha256 is None:  # registered by an instance that issued no token
+            return
+        if token is None or not hmac.compare_digest(_sha256(token), rec.token_sha256):
+            raise _Refused(ErrorCode.FORBIDDEN, f"{action} of session {rec.session_id!r} "
+                           "needs its control token (the one its start was acknowledged "
+                           "with)" if token is None else f"{action} of session "
+                           f"{rec.session_id!r}: not its control token")
+
     def _reinit(self, req: ReinitRequest) -> Ack:
         rec = self._record(req.session_id)
+        self._authorize(rec, req.control_token, "reinit")
         self._forward(rec.worker, ReinitSession(rec.session_id, req.box, req.frame_seq))
         update: dict[str, Any] = {"box": req.box, "frame_seq": req.frame_seq}
         if req.client_id is not None and req.client_id != rec.client_id:
@@ -592,6 +615,7 @@ class ControlPlane:
 
     def _stop(self, req: StopRequest) -> Ack:
         rec = self._record(req.session_id)
+        self._authorize(rec, req.control_token, "stop")
         with self.lock:
             self.sessions.pop(rec.session_id, None)
         if self.cluster is not None:
@@ -635,6 +659,10 @@ class ControlPlane:
             instances=self.cluster.live() if self.cluster is not None
             else [self.settings.instance_id],
         )
+
+
+def _sha256(token: str) -> str:
+    return hashlib.sha256(token.encode()).hexdigest()
 
 
 class _Refused(Exception):

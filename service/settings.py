@@ -124,6 +124,11 @@ class ServiceSettings:
         "a worker whose resident memory passes this (checked every second) resets its video "
         "decoders, each stream resuming at its next keyframe (decode_error, resync cause "
         "'memory'), and returns its freed memory to the system; 0: off"))
+    session_control: str = field(default="owner", metadata=_about(
+        "who may stop or re-initialise a session: 'owner', the holder of its control token "
+        "(sent to the station that started it, in the start's ack); 'open', any station "
+        "that may query the control key (the deployment's ACL is then the only rule)",
+        choices=("owner", "open")))
     quarantine_after: int = field(default=2, metadata=_about(
         "a stream whose frames were being processed when this many worker processes died "
         "(a crash in a decoder, the out-of-memory killer) within quarantine_s is quarantined: "
@@ -176,6 +181,9 @@ class ServiceSettings:
                 and self.session_budget_ms > 0):
             raise ValueError("session_idle_s and session_budget_ms must be > 0, "
                              "client_grace_s >= 0")
+        if self.session_control not in ("owner", "open"):
+            raise ValueError(f"session_control must be owner or open, got "
+                             f"{self.session_control!r}")
         if self.quarantine_after < 0 or not self.quarantine_s > 0:
             raise ValueError("quarantine_after must be >= 0 (0: never) and quarantine_s > 0")
         if self.worker_max_rss_mb < 0:

@@ -61,7 +61,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             with sync_playwright() as p:
                 browser = p.chromium.launch(executable_path=chromium, args=["--no-sandbox"])
                 page = browser.new_page(viewport={"width": 1300, "height": 1000})
-                page.goto(view.url + f"?stream={STREAM}")
+                page.goto(view.url + f"?stream={STREAM}#token={view.control.token}")
                 page.wait_for_function(
                     "document.getElementById('video').naturalWidth > 0 && "
                     "window.arcfView.control.ready", timeout=60_000)

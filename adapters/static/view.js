@@ -8,7 +8,18 @@ let presets = new Map();
 let lastSeq = null;
 // tracking control (arcf-view --allow-control): what the page may do, and the session a drawn
 // box re-initialises (none: it starts a new one)
-const control = { on: false, selected: null, last: null };
+const control = { on: false, selected: null, last: null, token: takeToken() };
+
+// The control token arrives in the address's fragment (#token=..., printed by arcf-view): kept
+// for this tab, then removed from the address bar, so that it is neither bookmarked nor shown.
+function takeToken() {
+  const given = new URLSearchParams(location.hash.slice(1)).get("token");
+  if (given) {
+    sessionStorage.setItem("arcf-view-token", given);
+    history.replaceState(null, "", location.pathname + location.search);
+  }
+  return sessionStorage.getItem("arcf-view-token");
+}
 
 function el(tag, text, attrs = {}) {
   const e = document.createElement(tag);
@@ -58,7 +69,7 @@ function renderTable() {
     const row = el("tr", undefined, { class: classes.trim(), "data-session": id,
       title: stale ? (r.message || "") : "" });
     const actions = el("td");
-    if (control.on) {
+    if (control.on && control.token) {
       const pick = el("button", id === control.selected ? "selected" : "re-draw", { type: "button", class: "select" });
       pick.onclick = () => select(id === control.selected ? null : id);
       const stop = el("button", "stop", { type: "button", class: "stop" });
@@ -83,18 +94,21 @@ function select(id) {
 
 function hint() {
   const text = !control.on ? "view only: tracking control is off (arcf-view --allow-control)"
+    : !control.token ? "view only: control needs the view's token (open the address arcf-view printed)"
     : control.selected ? "drag a box to re-initialise " + control.selected.slice(0, 8)
     : "drag a box around a target to track it";
   document.getElementById("control-hint").textContent = text;
-  document.getElementById("draw").classList.toggle("on", control.on);
+  document.getElementById("draw").classList.toggle("on", control.on && !!control.token);
 }
 
 async function send(path, body) {
   const state = document.getElementById("control-state");
   let reply;
   try {
-    const r = await fetch(path, { method: "POST", headers: { "Content-Type": "application/json" },
-      body: JSON.stringify(body), cache: "no-store" });
+    const headers = { "Content-Type": "application/json" };
+    if (control.token) headers.Authorization = "Bearer " + control.token;
+    const r = await fetch(path, { method: "POST", headers, body: JSON.stringify(body),
+      cache: "no-store" });
     reply = { status: r.status, ...(await r.json()) };
   } catch (err) {
     reply = { status: 0, message: "the live view's server does not answer" };
@@ -118,7 +132,7 @@ function setUpDrawing() {
   const rect = (a, b) => [Math.min(a[0], b[0]), Math.min(a[1], b[1]), Math.abs(a[0] - b[0]), Math.abs(a[1] - b[1])];
   const clear = () => { canvas.width = canvas.clientWidth; canvas.height = canvas.clientHeight; };
   canvas.addEventListener("pointerdown", (e) => {
-    if (!control.on || !img.naturalWidth || e.button !== 0) return;
+    if (!control.on || !control.token || !img.naturalWidth || e.button !== 0) return;
     from = at(e);
     canvas.setPointerCapture(e.pointerId);
   });
@@ -158,7 +172,7 @@ async function setUpControl() {
     const choice = document.getElementById("preset");
     for (const name of config.presets) choice.append(el("option", name, { value: name }));
     choice.value = config.preset;
-    choice.disabled = !control.on;
+    choice.disabled = !control.on || !control.token;
   } catch (err) {
     control.on = false;
   }

@@ -83,8 +83,18 @@ def test_a_dragged_box_starts_then_reinitialises_then_stops_a_session(
         try:
             with sync_playwright() as p:
                 browser = p.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
+                # the address without the token only watches
+                watcher = browser.new_page()
+                watcher.goto(view.url + "?stream=cam-9")
+                watcher.wait_for_function(
+                    "document.getElementById('control-hint').textContent.includes('token')",
+                    timeout=30_000)
+                assert not watcher.locator("#sessions button.stop").count()
+                watcher.close()
                 page = browser.new_page(viewport={"width": 1300, "height": 1000})
-                page.goto(view.url)
+                page.goto(view.control_url)
+                # the token is kept for the tab and taken out of the address
+                page.wait_for_function("!location.hash", timeout=30_000)
                 # listed with no session (the station announces what it publishes)
                 link = page.locator("#streams a", has_text="cam-9")
                 link.wait_for(timeout=30_000)
@@ -172,8 +182,13 @@ def test_control_is_off_unless_turned_on_and_only_the_views_page_may_use_it(
 
         on = LiveView(viewer, "127.0.0.1", 0, allow_control=True)
         url = on.url + "api/streams/cam-x/sessions"
+        token = on.control.token
         try:
             refusals = [
+                # whoever reaches the page without the view's token
+                ({"Authorization": ""}, box, "bad_credential", 401),
+                ({"Authorization": "Bearer " + token[:-1] + "x"}, box, "bad_credential", 401),
+                ({"Authorization": "Basic " + token}, box, "bad_credential", 401),
                 # another site open in the operator's browser
                 ({"Origin": "http://evil.example"}, box, "bad_origin", 403),
                 # a name rebound to this machine (DNS rebinding): its own Host header
@@ -186,29 +201,35 @@ def test_control_is_off_unless_turned_on_and_only_the_views_page_may_use_it(
                 ({}, {"box": [1, 2, 3, 4], "frame_seq": -1}, "bad_request", 400),
             ]
             for headers, body, code_wanted, status_wanted in refusals:
-                status, reply = post(url, body, headers)
+                status, reply = post(url, body, {"Authorization": f"Bearer {token}", **headers})
                 assert (status, reply["code"]) == (status_wanted, code_wanted), (headers, body)
-            status, reply = post(url, None, raw=b"{not json")
+            auth = {"Authorization": f"Bearer {token}"}
+            status, reply = post(url, None, auth, raw=b"{not json")
             assert status == 400 and reply["code"] == "bad_request"
-            status, _ = post(url, None, raw=b"x" * (MAX_BODY + 1))
+            status, _ = post(url, None, auth, raw=b"x" * (MAX_BODY + 1))
             assert status == 413
             # the service's own refusals, with its code
-            status, reply = post(url, {"box": [1, 2, 3, 4], "preset": "kcf"})
+            status, reply = post(url, {"box": [1, 2, 3, 4], "preset": "kcf"}, auth)
             assert status == 422 and reply["code"] == "unknown_preset"
-            status, reply = post(on.url + "api/sessions/nobody/stop", {})
+            status, reply = post(on.url + "api/sessions/nobody/stop", {}, auth)
             assert status == 404 and reply["code"] == "unknown_session"
             assert viewer.status("cam-x").sessions == []  # nothing was started
-            # the page's own request (its origin, JSON): started; then stopped
-            status, reply = post(url, box, {"Origin": on.url.rstrip("/")})
+            # the page's own request (its origin, JSON, the token): started; then stopped
+            status, reply = post(url, box, {"Origin": on.url.rstrip("/"), **auth})
             assert status == 201
             sid = reply["session_id"]
             assert [s.session_id for s in viewer.status("cam-x").sessions] == [sid]
-            status, _ = post(on.url + f"api/sessions/{sid}/stop", {})
+            # without the token, even the view's own page cannot stop it
+            status, reply = post(on.url + f"api/sessions/{sid}/stop", {})
+            assert status == 401 and reply["code"] == "bad_credential"
+            status, _ = post(on.url + f"api/sessions/{sid}/stop", {}, auth)
             assert status == 200 and viewer.status("cam-x").sessions == []
         finally:
             on.close()
         counted = sum(v for k, v in on.counts.items() if k.startswith("control_"))
-        assert counted == len(refusals) + 2 + 2  # the bad JSON, the service's two refusals
+        # the bad JSON, the service's two refusals, the stop without the token
+        assert counted == len(refusals) + 2 + 2 + 1
+        assert on.counts["control_bad_credential"] == 3 + 1
         assert on.counts["control_bad_request"] == 5 + 1 + 1  # the body too large, counted
 
 

@@ -386,6 +386,20 @@ def test_ros2_nodes_track_through_the_bridge() -> None:
                    what="the stop's empty array")
         assert Detection2DArray.deserialize(about_image(len(data))[-1][0]).detections == []
         assert client.status("cam1").sessions == []
+
+        # a session of the stream that another station started: the bridge holds no control
+        # token for it, so the service refuses to let it re-draw it (answered ERROR,
+        # forbidden), and the session goes on
+        theirs = client.start("cam1", (10.0, 10.0, 40.0, 40.0), preset="bacf")
+        send(len(data) + 1)
+        seen = Detection2DArray.deserialize(about_image(len(data) + 1)[0][0]).detections
+        assert [d.id for d in seen] == [theirs.session_id]
+        redraw = Detection2D(Header(Time(5, 0), ""), [], request.bbox, theirs.session_id)
+        node.put(track_key, redraw.serialize(), attachment=attachment(3, time.time_ns(), gid))
+        refusal, values = reply_to(5)
+        assert refusal.level == 2 and values["code"] == "forbidden", refusal.message
+        assert [s.session_id for s in client.status("cam1").sessions] == [theirs.session_id]
+        client.stop(theirs.session_id)
         sub.undeclare()
         dsub.undeclare()
         rpsub.undeclare()

@@ -19,7 +19,7 @@ from arcf.data import data_root
 from arcf.eval import load_dataset
 from arcf.loadtools.procs import ServiceProcess, free_port
 from arcf.schemas import Status, StatusRequest, decode, encode
-from arcf.service.client import TrackingClient
+from arcf.service.client import ServiceError, TrackingClient
 
 ROOT = Path(__file__).resolve().parents[2]
 DEPLOY = ROOT / "deploy" / "zenoh"
@@ -109,6 +109,14 @@ def test_only_authorised_stations_track(tmp_path: Path) -> None:
                     bad.start("cam-x", seq.init_box, preset="bacf", timeout=1.0)
                 with pytest.raises(TimeoutError):
                     bad.stop(ack.session_id, timeout=1.0)
+                # an authorised station that did not start the session (no control token)
+                # cannot stop or re-draw it either
+                with TrackingClient(session=station, tie_sessions=False) as other:
+                    for act in (lambda: other.stop(ack.session_id),
+                                lambda: other.reinit(ack.session_id, seq.init_box)):
+                        with pytest.raises(ServiceError) as refused:
+                            act()
+                        assert refused.value.code == "forbidden"
                 # ...nor inject frames into a tracked stream, nor forge its results
                 bad.publish_frame("cam", data=data[3], seq=1000)
                 got = []

@@ -342,7 +342,8 @@ def test_a_station_that_reconnects_within_the_grace_keeps_its_sessions(strict, c
             assert [s.session_id for s in observer.status(stream_id="keep").sessions] == [
                 ack.session_id]
         finally:
-            again.stop(ack.session_id)
+            # the station's own session: it kept the control token over its restart
+            again.stop(ack.session_id, control_token=ack.control_token)
             again.close()
 
 
@@ -357,7 +358,12 @@ def test_a_restarted_station_adopts_the_sessions_it_left_behind(strict, clip) ->
         try:
             (info,) = second.status(stream_id="adopted").sessions
             assert (info.session_id, info.client_id) == (ack.session_id, first.client_id)
-            second.reinit(ack.session_id, clip.box, adopt=True)
+            # without the control token its first run kept, the session is not its to adopt
+            with pytest.raises(ServiceError) as refused:
+                second.reinit(ack.session_id, clip.box, adopt=True)
+            assert refused.value.code == "forbidden"
+            assert ack.control_token is not None
+            second.reinit(ack.session_id, clip.box, adopt=True, control_token=ack.control_token)
             assert second.status(stream_id="adopted").sessions[0].client_id == second.client_id
             frames.run(2.5)  # past the first station's grace (1 s), checked once a second
             assert [r for r in watch.results if r.status.value == "stopped"] == []
