@@ -48,6 +48,7 @@ from typing import Any
 
 import cv2
 import numpy as np
+from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, Counter, generate_latest
 
 from arcf.schemas import Result
 from arcf.service.client import TrackingClient
@@ -373,8 +374,14 @@ class LiveView:
         self._viewers = 0
         #: watching connections per client address
         self._by_client: dict[str, int] = {}
-        #: what was refused or dropped, by reason (for tests and logs)
+        #: what was refused or dropped, by reason (for tests and logs); the same on the
+        #: page's ``/metrics`` (Prometheus), ``arcf_view_events_total{reason}``
         self.counts: dict[str, int] = {}
+        self.registry = CollectorRegistry()
+        self._events_total = Counter(
+            "arcf_view_events_total", "Requests the live view refused (control_<code>: "
+            "control requests, by their code) and viewers it refused or dropped, by reason",
+            ["reason"], registry=self.registry)
         self._status: tuple[float, bytes] = (0.0, b"")
         self.control = ViewControl(client, enabled=allow_control, allowed_hosts=allowed_hosts,
                                    count=self.count, token=control_token)
@@ -415,6 +422,7 @@ class LiveView:
     def count(self, reason: str) -> None:
         with self._lock:
             self.counts[reason] = self.counts.get(reason, 0) + 1
+        self._events_total.labels(reason=reason).inc()
 
     def _watch(self, stream_id: str, client: str) -> Watch | str:
         """The stream's watch, with one more viewer; or why not (a 503's text)."""
@@ -460,6 +468,8 @@ class LiveView:
         elif path == "/api/config":
             self._send(req, HTTPStatus.OK, "application/json",
                        json.dumps(self.control.config()).encode())
+        elif path == "/metrics":
+            self._send(req, HTTPStatus.OK, CONTENT_TYPE_LATEST, generate_latest(self.registry))
         elif (m := _STREAM.match(path)) is not None:
             client = req.client_address[0]
             watch = self._watch(m.group(1), client)

@@ -224,12 +224,18 @@ def test_control_is_off_unless_turned_on_and_only_the_views_page_may_use_it(
             assert status == 401 and reply["code"] == "bad_credential"
             status, _ = post(on.url + f"api/sessions/{sid}/stop", {}, auth)
             assert status == 200 and viewer.status("cam-x").sessions == []
+            metrics_text = urllib.request.urlopen(on.url + "metrics", timeout=10).read().decode()
         finally:
             on.close()
         counted = sum(v for k, v in on.counts.items() if k.startswith("control_"))
         # the bad JSON, the service's two refusals, the stop without the token
         assert counted == len(refusals) + 2 + 2 + 1
         assert on.counts["control_bad_credential"] == 3 + 1
+        # the same on the page's Prometheus endpoint
+        from arcf.service.scrape import by_label
+
+        exposed = by_label(metrics_text, "arcf_view_events_total", "reason")
+        assert {k: int(v) for k, v in exposed.items()} == on.counts
         assert on.counts["control_bad_request"] == 5 + 1 + 1  # the body too large, counted
 
 
