@@ -123,7 +123,9 @@ def test_a_docs_only_station_starts_a_session_with_dotted_overrides(
         reacquire_scenario.replay(
             publish, lambda k: any(m.get("frame_seq") == k and m.get("track_state")
                                    for m in list(maps)))
-        stopped = _control(client, {"type": "stop", "request_id": "r-2", "session_id": session})
+        # with the session's control token, from the start's ack (wire contract: stop)
+        stopped = _control(client, {"type": "stop", "request_id": "r-2", "session_id": session,
+                                    "control_token": ack["control_token"]})
         assert stopped["type"] == "ack", stopped
         pub.undeclare()
         sub.undeclare()
