@@ -69,8 +69,8 @@ class Feed:
             t_next += self.period
             time.sleep(max(0.0, t_next - time.monotonic()))
 
-    def lost(self, t0: float, t1: float, grace: float = 2.0) -> int:
-        """Frames sent within [t0, t1] with no result (each had ``grace`` s to get one)."""
+    def lost(self, t0: float, t1: float) -> int:
+        """Frames sent within [t0, t1] with no result (the caller gave them time to get one)."""
         return sum(1 for seq, t in list(self.sent.items())
                    if t0 <= t <= t1 and seq not in self.results)
 
@@ -154,7 +154,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 t_ready = time.monotonic()
                 time.sleep(2.0)  # the other stream's frames of the episode get their results
                 # from the kill until the replacement is ready (its start-up takes CPU too)
-                lost = feeds[other].lost(t_kill - 0.5, t_ready)
+                lost = feeds[other].lost(t_kill, t_ready)
                 resume_s.append(resumed)
                 lost_other.append(lost)
                 print(f"kill {k + 1} ({sig.name}): {stream} resumed after "
