@@ -1,5 +1,5 @@
-"""What the adapters' console commands share: how they reach the service, logging, and a stop
-on SIGINT / SIGTERM."""
+"""What the adapters' console commands share: how they reach the service, logging, a stop
+on SIGINT / SIGTERM, and their counts on a Prometheus endpoint."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import logging
 import signal
 import threading
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from typing import Any
 
 from arcf.service.client import TrackingClient
@@ -34,6 +34,43 @@ def service_client(args: argparse.Namespace, **kwargs: Any) -> TrackingClient:
     """A client of the service the arguments name (it may not answer yet)."""
     return TrackingClient(connect=args.connect or [DEFAULT_ENDPOINT], prefix=args.prefix,
                           **kwargs)
+
+
+def add_metrics_argument(ap: argparse.ArgumentParser) -> None:
+    """``--metrics-port``: where the adapter's counts are served for Prometheus."""
+    ap.add_argument("--metrics-port", type=int, default=-1, metavar="PORT",
+                    help="serve the adapter's counts (what it refused, dropped or carried out) "
+                    "as arcf_adapter_events_total{adapter,event} on http://127.0.0.1:PORT/"
+                    "metrics (0: any free port; default: off)")
+
+
+class CountsCollector:
+    """A Prometheus collector over an adapter's ``counts`` (read at each scrape, so the
+    adapter keeps counting as it does): ``arcf_adapter_events_total{adapter, event}``."""
+
+    def __init__(self, adapter: str, counts: Callable[[], Mapping[str, int]]) -> None:
+        self.adapter, self.counts = adapter, counts
+
+    def collect(self) -> Iterator[Any]:
+        from prometheus_client.core import CounterMetricFamily
+
+        family = CounterMetricFamily(
+            "arcf_adapter_events", "What the adapter refused, dropped or carried out, by event "
+            "(its counts: unsigned, refused, bad_track, ...)", labels=["adapter", "event"])
+        for event, n in sorted(dict(self.counts()).items()):
+            family.add_metric([self.adapter, event], float(n))
+        yield family
+
+
+def serve_counts(adapter: str, counts: Callable[[], Mapping[str, int]], port: int,
+                 host: str = "127.0.0.1") -> tuple[Any, str]:
+    """Serve ``counts`` on ``http://host:port/metrics``; (the server, its URL)."""
+    from prometheus_client import CollectorRegistry, start_http_server
+
+    registry = CollectorRegistry()
+    registry.register(CountsCollector(adapter, counts))
+    server, _ = start_http_server(port, addr=host, registry=registry)
+    return server, f"http://{host}:{server.server_port}/metrics"
 
 
 #: the first wait between two attempts to reach the service, and the longest

@@ -72,11 +72,13 @@ from arcf.service.imagecheck import image_size
 from arcf.service.video import CODECS, PictureSize
 
 from ._command import (
+    add_metrics_argument,
     add_override_arguments,
     add_service_arguments,
     check_preset,
     parse_overrides,
     prepare,
+    serve_counts,
     wait_for_service,
 )
 from .gimbal import FollowSettings, GimbalFollower, GimbalTarget
@@ -942,6 +944,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                     help="fastest rate commanded, deg/s (default %(default)s)")
     ap.add_argument("--follow-hz", type=float, default=30.0,
                     help="most gimbal commands a second (default %(default)s)")
+    add_metrics_argument(ap)
     args = ap.parse_args(argv)
     overrides = parse_overrides(ap, args.set)
     try:
@@ -996,6 +999,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"arcf-mavlink: {len(cameras)} camera(s) on {args.mavlink}: "
               + ", ".join(f"{c.stream_id} as {args.system_id}/{c.component_id}"
                           for c in cameras), flush=True)
+        if args.metrics_port >= 0:
+            _, url = serve_counts("mavlink", lambda: endpoint.counts, args.metrics_port)
+            print(f"arcf-mavlink: counts on {url}", flush=True)
         while not stop.wait(1.0):
             if not endpoint.alive:  # never a silent zombie: a supervisor restarts us
                 print("arcf-mavlink: the MAVLink loop stopped", file=sys.stderr)

@@ -61,11 +61,13 @@ from arcf.service.client import ServiceError, TrackingClient
 
 from . import ros2_types as rt
 from ._command import (
+    add_metrics_argument,
     add_override_arguments,
     add_service_arguments,
     check_preset,
     parse_overrides,
     prepare,
+    serve_counts,
     wait_for_service,
 )
 
@@ -544,6 +546,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--image", action="append", required=True, metavar="TOPIC=STREAM",
                     help="a sensor_msgs/msg/CompressedImage topic and the stream it feeds")
     add_service_arguments(ap)
+    add_metrics_argument(ap)
     ap.add_argument("--ros-connect", default=None,
                     help="rmw_zenoh's router, when not the same Zenoh network (e.g. "
                     "tcp/127.0.0.1:7448)")
@@ -579,6 +582,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"arcf-ros2: node /{args.node_name} in domain {args.domain_id}: "
               + ", ".join(f"{t} -> {s} -> /{args.node_name}/{s}/detections"
                           for t, s in images.items()), flush=True)
+        if args.metrics_port >= 0:
+            _, url = serve_counts("ros2", lambda: bridge.counts, args.metrics_port)
+            print(f"arcf-ros2: counts on {url}", flush=True)
         stop.wait()
         bridge.close()
         if ros is not None:

@@ -18,6 +18,7 @@ import pytest
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil
 
+from arcf.adapters._command import serve_counts
 from arcf.adapters.mavlink import (
     DONE_MAX,
     MAX_PEERS,
@@ -29,6 +30,7 @@ from arcf.loadtools.groundstation import GroundStation
 from arcf.loadtools.procs import free_port
 from arcf.loadtools.waiting import wait_until as _wait
 from arcf.schemas import Frame
+from arcf.service.scrape import fetch, series
 
 mav = mavutil.mavlink
 STREAM, COMP = "cam1", 100
@@ -146,6 +148,14 @@ def test_with_a_signing_key_only_signed_commands_are_obeyed(offline_client: Any)
         ack = signed.since(t0, "COMMAND_ACK")[0]
         assert ack.result == mav.MAV_RESULT_ACCEPTED and ack.get_signed()
         assert endpoint.counts["commands"] == 1 and endpoint.counts["unsigned"] == 1
+        # the refusal on the adapter's Prometheus endpoint (arcf-mavlink --metrics-port)
+        server, url = serve_counts("mavlink", lambda: endpoint.counts, 0)
+        try:
+            events = {labels["event"]: value for labels, value in series(fetch(url)).get(
+                "arcf_adapter_events_total", []) if labels["adapter"] == "mavlink"}
+        finally:
+            server.shutdown()
+        assert events["unsigned"] == 1 and events["commands"] == 1
     finally:
         signed.close()
         endpoint.close()
