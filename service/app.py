@@ -225,9 +225,10 @@ class Service:
             if quarantined and rec.stream_id == culprit:
                 self.cluster.withdraw(rec.session_id)  # ended, not resumed
                 code = ErrorCode.QUARANTINED
-                message = (f"worker {k} died ({cause}) on a frame of stream {culprit}, the "
-                           f"{self.control.strikes.after}th time: session {rec.session_id} "
-                           f"ended; starts on the stream are refused for "
+                message = (f"worker {k} died ({cause}) on a frame of stream {culprit}: "
+                           f"{self.control.strikes.after} workers died on its frames within "
+                           f"{self.settings.quarantine_s:g} s, so session {rec.session_id} "
+                           f"ended and starts on the stream are refused for "
                            f"{self.settings.quarantine_s:g} s")
             else:
                 code = ErrorCode.INTERNAL

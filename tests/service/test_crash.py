@@ -68,7 +68,8 @@ def test_a_stream_whose_frames_workers_die_on_twice_is_quarantined() -> None:
                     if stop.is_set() or time.monotonic() > t_end:
                         return
                     client.publish_frame("hot", data=data[i % len(data)], seq=i)
-                    time.sleep(1 / FEED_FPS)
+                    if stop.wait(1 / FEED_FPS):  # the feed's pace; ends at once when told
+                        return
 
             feeder = threading.Thread(target=feed, name="feeder", daemon=True)
             feeder.start()
