@@ -1,6 +1,6 @@
 """Adapters between the tracking service and the protocols ground stations already speak.
 
-Each adapter is a client of the service (through :mod:`arcf.service.client`, the same SDK a station
+Each adapter is a client of the service (through :mod:`arcf.client`, the same SDK a station
 uses), never part of it: the service knows nothing of MAVLink, and an adapter can run on the
 ground station, on the companion computer or next to the service.
 

@@ -11,8 +11,8 @@ import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from typing import Any
 
-from arcf.service.client import TrackingClient
-from arcf.service.settings import LOG_FORMAT
+from arcf.client import TrackingClient
+from arcf.client.transport import LOG_FORMAT
 
 #: the service's endpoint on its embedded default
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"

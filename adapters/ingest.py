@@ -9,7 +9,7 @@ ArduPilot's convention: UDP port 5600, no SDP), MPEG-TS over UDP, or a V4L2 devi
   (FFmpeg, through PyAV) returns goes out as it came, in Annex B form (an MP4's length-prefixed
   units are converted by FFmpeg's ``*_mp4toannexb`` filter), with the parameter sets of the
   stream's configuration (an SDP's ``sprop-parameter-sets``) put in front of a keyframe that
-  comes without them. The service decodes it (:mod:`arcf.service.video`).
+  comes without them. The service decodes it (:mod:`arcf.client.media.video`).
 * **MJPEG is passed through** as JPEG; anything else (raw video, VP8, a V4L2 webcam read with
   OpenCV) is decoded here and sent as JPEG.
 * **Numbering says what was lost:** units are numbered consecutively. Whatever breaks the
@@ -48,8 +48,8 @@ import av.bitstream
 import cv2
 import numpy as np
 
-from arcf.service.client import TrackingClient
-from arcf.service.video import KEYFRAME_TYPES, PARAMETER_TYPES, nal_units
+from arcf.client import TrackingClient
+from arcf.client.media.video import KEYFRAME_TYPES, PARAMETER_TYPES, nal_units
 
 from ._command import add_service_arguments, prepare, wait_for_service
 

@@ -50,11 +50,11 @@ import cv2
 import numpy as np
 from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, Counter, generate_latest
 
+from arcf.client import TrackingClient
+from arcf.client.media.headers import image_size
+from arcf.client.media.images import decode_compressed
+from arcf.client.media.video import CODECS, Outcome, StreamDecoder
 from arcf.schemas import Result
-from arcf.service.client import TrackingClient
-from arcf.service.decoding import decode_compressed
-from arcf.service.imagecheck import image_size
-from arcf.service.video import CODECS, Outcome, StreamDecoder
 
 from ._command import add_service_arguments, prepare, wait_for_service
 from .record import PALETTE

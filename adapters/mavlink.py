@@ -66,10 +66,10 @@ os.environ.setdefault("MAVLINK20", "1")
 
 from pymavlink import mavutil
 
+from arcf.client import ServiceError, TrackingClient
+from arcf.client.media.headers import image_size
+from arcf.client.media.video import CODECS, PictureSize
 from arcf.schemas import ErrorCode, Frame, Result, ResultStatus, TrackState
-from arcf.service.client import ServiceError, TrackingClient
-from arcf.service.imagecheck import image_size
-from arcf.service.video import CODECS, PictureSize
 
 from ._command import (
     add_metrics_argument,

@@ -40,11 +40,10 @@ import cv2
 import numpy as np
 from mcap.writer import CompressionType, Writer
 
+from arcf.client import TrackingClient, foxglove
+from arcf.client.media.video import CODECS, KEYFRAME_TYPES, nal_units
 from arcf.schemas import Result
 from arcf.schemas.export import message_schema
-from arcf.service import foxglove
-from arcf.service.client import TrackingClient
-from arcf.service.video import CODECS, KEYFRAME_TYPES, nal_units
 
 from ._command import add_service_arguments, prepare, wait_for_service
 from .tap import DEFAULT_VIDEO_KEY, StreamTap, TapFrame

@@ -56,8 +56,8 @@ import numpy as np
 import zenoh
 from zenoh.ext import Int64, z_serialize
 
+from arcf.client import ServiceError, TrackingClient
 from arcf.schemas import Result, ResultStatus, TrackState
-from arcf.service.client import ServiceError, TrackingClient
 
 from . import ros2_types as rt
 from ._command import (
@@ -564,7 +564,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             ap.error(f"--image needs /TOPIC=STREAM, got {item!r}")
         images[topic] = stream
     stop = prepare()
-    from arcf.service.transport import open_session
+    from arcf.client.transport import open_session
 
     client = wait_for_service(args, log, stop)
     if client is None:

@@ -1,7 +1,7 @@
 """ROS 2 message types for the ROS 2 adapter: definitions, CDR and type hashes from ``rosbags``.
 
 ``rosbags`` (a maintained pure-Python ROS 2 toolkit on PyPI) carries the standard messages of
-each ROS 2 distribution (Jazzy's are used, :mod:`arcf.service.cdr`), serialises and parses CDR, and
+each ROS 2 distribution (Jazzy's are used, :mod:`arcf.client.cdr`), serialises and parses CDR, and
 computes the RIHS01 type hashes that ``rmw_zenoh`` puts in every key. ``vision_msgs`` is not
 among its standard messages, so its definitions (vision_msgs 4.x, as shipped with Humble,
 Jazzy and later) are registered here from their ``.msg`` text.
@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from arcf.service.cdr import MessageTypes
+from arcf.client.cdr import MessageTypes
 
 COMPRESSED_IMAGE = "sensor_msgs/msg/CompressedImage"
 DETECTION_2D_ARRAY = "vision_msgs/msg/Detection2DArray"

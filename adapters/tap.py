@@ -16,9 +16,9 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from arcf.client import TrackingClient
+from arcf.client.foxglove import parse_compressed_video
 from arcf.schemas import Frame, Result
-from arcf.service.client import TrackingClient
-from arcf.service.foxglove import parse_compressed_video
 
 log = logging.getLogger(__name__)
 

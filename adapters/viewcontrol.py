@@ -41,7 +41,7 @@ from http import HTTPStatus
 from typing import Any
 from urllib.parse import urlsplit
 
-from arcf.service.client import ServiceError, TrackingClient
+from arcf.client import ServiceError, TrackingClient
 
 log = logging.getLogger(__name__)
 

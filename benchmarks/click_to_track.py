@@ -28,11 +28,11 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from arcf.adapters.liveview import LiveView
+from arcf.client import TrackingClient
 from arcf.eval import load_dataset
 from arcf.eval.environment import describe
 from arcf.loadtools.procs import ServiceProcess
 from arcf.schemas import Result
-from arcf.service.client import TrackingClient
 
 
 def post(url: str, body: dict, token: str) -> dict:

@@ -25,13 +25,13 @@ from pathlib import Path
 from statistics import median
 from typing import Any
 
+from arcf.client import TrackingClient
 from arcf.data import data_root
 from arcf.eval import load_dataset
 from arcf.eval.environment import describe
 from arcf.loadtools.compose import INSTANCES, ComposeStack, stack_env
 from arcf.loadtools.driver import Clip, failover_fleet
 from arcf.loadtools.procs import free_port
-from arcf.service.client import TrackingClient
 from arcf.service.cluster import owner
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -30,11 +30,11 @@ from typing import Any
 
 import numpy as np
 
+from arcf.client import TrackingClient
 from arcf.eval import load_dataset
 from arcf.loadtools.procs import ServiceProcess, worker_pids
 from arcf.loadtools.system import machine
 from arcf.schemas import KeySpace, Result
-from arcf.service.client import TrackingClient
 from arcf.service.scrape import by_label, fetch
 
 STREAMS = ("crash-a", "crash-b")

@@ -31,13 +31,13 @@ from pymavlink import mavutil
 
 from arcf.adapters.gimbal import FollowSettings, GimbalFollower, GimbalTarget
 from arcf.adapters.mavlink import CameraConfig, MavlinkCameras
+from arcf.client import TrackingClient
 from arcf.eval import load_dataset
 from arcf.eval.environment import describe
 from arcf.loadtools.gimbalsim import SimulatedGimbal, VirtualCamera
 from arcf.loadtools.groundstation import GroundStation
 from arcf.loadtools.procs import ServiceProcess, free_port
 from arcf.schemas import Result
-from arcf.service.client import TrackingClient
 
 mav = mavutil.mavlink
 VIEW = (640, 360)

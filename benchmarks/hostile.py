@@ -44,14 +44,14 @@ from typing import Any
 
 import numpy as np
 
+from arcf.client import ServiceError, TrackingClient
+from arcf.client.foxglove import compressed_video
 from arcf.eval import load_dataset
 from arcf.loadtools.driver import Clip, Fleet, Pacing
 from arcf.loadtools.procs import ServiceProcess
 from arcf.loadtools.system import machine
 from arcf.loadtools.video import encode_video
 from arcf.schemas import Frame, KeySpace, encode
-from arcf.service.client import ServiceError, TrackingClient
-from arcf.service.foxglove import compressed_video
 from arcf.service.scrape import by_label, delta, fetch, scrape, series
 
 KEYS = KeySpace()
@@ -158,7 +158,7 @@ def main() -> int:
         def vanishing(k: int) -> None:
             if k:
                 return
-            script = ("import time\nfrom arcf.service.client import TrackingClient\n"
+            script = ("import time\nfrom arcf.client import TrackingClient\n"
                       f"c = TrackingClient(connect=[{svc.endpoint!r}])\n"
                       f"[c.start(f'gone-{{j}}', {list(clip.box)!r}, preset='bacf') "
                       "for j in range(30)]\nprint('started', flush=True)\ntime.sleep(60)\n")

@@ -54,11 +54,11 @@ import numpy as np
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil
 
+from arcf.client import TrackingClient
 from arcf.eval import load_dataset
 from arcf.loadtools.groundstation import GroundStation
 from arcf.loadtools.procs import ServiceProcess, free_port
 from arcf.loadtools.system import machine
-from arcf.service.client import TrackingClient
 
 mav = mavutil.mavlink
 

@@ -26,6 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
+from arcf.client import TrackingClient
+from arcf.client.media.images import decode_compressed
 from arcf.eval import load_dataset
 from arcf.eval.environment import describe
 from arcf.loadtools.procs import ServiceProcess, free_port
@@ -39,8 +41,6 @@ from arcf.loadtools.senders import (
 from arcf.loadtools.video import encode_video
 from arcf.loadtools.waiting import wait_until
 from arcf.schemas import Frame
-from arcf.service.client import TrackingClient
-from arcf.service.decoding import decode_compressed
 
 FPS, GOP = 30, 10
 

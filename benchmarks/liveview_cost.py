@@ -23,12 +23,12 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from arcf.client import TrackingClient
+from arcf.client.media.images import decode_compressed
 from arcf.eval import load_dataset
 from arcf.eval.environment import describe
 from arcf.loadtools.procs import ServiceProcess, free_port
 from arcf.loadtools.video import encode_video
-from arcf.service.client import TrackingClient
-from arcf.service.decoding import decode_compressed
 
 TICK = os.sysconf("SC_CLK_TCK")
 

@@ -39,14 +39,14 @@ import numpy as np
 from pymavlink import mavutil
 
 from arcf.adapters.mavlink import CameraConfig, MavlinkCameras
+from arcf.client import TrackingClient
+from arcf.client.foxglove import compressed_video
+from arcf.client.media.images import decode_compressed
 from arcf.eval import load_dataset
 from arcf.eval.environment import describe
 from arcf.loadtools.procs import ServiceProcess, free_port
 from arcf.loadtools.video import encode_video
 from arcf.schemas import Result
-from arcf.service.client import TrackingClient
-from arcf.service.decoding import decode_compressed
-from arcf.service.foxglove import compressed_video
 
 ROOT = Path(__file__).resolve().parents[1]
 MAVPROXY_VENV = ROOT / ".venv-mavproxy"

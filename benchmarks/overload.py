@@ -24,10 +24,10 @@ import time
 from pathlib import Path
 from typing import Any
 
+from arcf.client import TrackingClient
 from arcf.loadtools.procs import ServiceProcess
 from arcf.loadtools.stress import run_overload
 from arcf.loadtools.system import machine
-from arcf.service.client import TrackingClient
 
 
 def main() -> int:

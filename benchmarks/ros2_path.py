@@ -28,11 +28,11 @@ import numpy as np
 
 from arcf.adapters import ros2_types as rt
 from arcf.adapters.ros2 import Ros2Bridge, attachment, topic_key
+from arcf.client import TrackingClient
+from arcf.client.transport import open_session
 from arcf.eval import load_dataset
 from arcf.eval.environment import describe
 from arcf.loadtools.procs import ServiceProcess
-from arcf.service.client import TrackingClient
-from arcf.service.transport import open_session
 
 
 def _lockstep(n: int, send: Callable[[int], object], answered: Callable[[], int]) -> list[float]:

@@ -27,12 +27,12 @@ import time
 from pathlib import Path
 from typing import Any
 
+from arcf.client import TrackingClient
 from arcf.eval import load_dataset
 from arcf.loadtools.driver import Clip, Fleet, failover_fleet
 from arcf.loadtools.loadtest import run_load
 from arcf.loadtools.procs import RouterProcess, ServiceProcess, start_instances
 from arcf.loadtools.system import machine, process_tree
-from arcf.service.client import TrackingClient
 from arcf.service.cluster import owner
 
 

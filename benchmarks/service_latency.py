@@ -19,12 +19,12 @@ import cv2
 import numpy as np
 
 import arcf
+from arcf.client import TrackingClient
+from arcf.client.media.images import decode_compressed
 from arcf.eval import load_dataset
 from arcf.eval.environment import describe
 from arcf.loadtools.driver import Clip, Fleet, Pacing
 from arcf.loadtools.procs import ServiceProcess
-from arcf.service.client import TrackingClient
-from arcf.service.decoding import decode_compressed
 
 
 def library(preset: str, clip: Clip) -> np.ndarray:

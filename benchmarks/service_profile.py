@@ -44,8 +44,8 @@ def library_alone(clip: Any, preset: str, frames: int, pace_s: float = 0.0) -> d
     import numpy as np
 
     import arcf
-    from arcf.service.decoding import decode_compressed
-    from arcf.service.video import StreamDecoder
+    from arcf.client.media.images import decode_compressed
+    from arcf.client.media.video import StreamDecoder
 
     cv2.setNumThreads(1)
     tracker = arcf.create_tracker(preset)
@@ -78,10 +78,10 @@ def service_run(clip: Any, preset: str, frames: int, fps: float,
     """One stream through a real service; CPU ms per frame by stage and by process."""
     from contextlib import ExitStack
 
+    from arcf.client import TrackingClient
     from arcf.loadtools.driver import Fleet, Pacing
     from arcf.loadtools.procs import RouterProcess, ServiceProcess
     from arcf.loadtools.system import cpu_seconds
-    from arcf.service.client import TrackingClient
     from arcf.service.scrape import by_label, fetch, totals
     from arcf.service.stages import STAGES
 

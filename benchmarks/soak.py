@@ -25,10 +25,10 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from arcf.client import TrackingClient
 from arcf.loadtools.procs import ServiceProcess
 from arcf.loadtools.stress import run_soak
 from arcf.loadtools.system import machine
-from arcf.service.client import TrackingClient
 
 
 def main() -> int:

@@ -45,10 +45,10 @@ import numpy as np
 from pymavlink import mavutil
 
 from arcf.adapters.mavlink import CameraConfig, MavlinkCameras
+from arcf.client import TrackingClient
 from arcf.eval import load_dataset
 from arcf.loadtools.procs import ServiceProcess, free_port
 from arcf.loadtools.system import machine
-from arcf.service.client import TrackingClient
 
 mav = mavutil.mavlink
 W, H = 1280, 720

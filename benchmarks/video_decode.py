@@ -1,6 +1,7 @@
-"""Decoding cost of a 1280x720 stream: H.264 access units (``arcf.service.video.StreamDecoder``)
-next to JPEG frames (``arcf.service.decoding.decode_compressed``, what a worker does today), on the
-same real frames, single-threaded; and the memory one stream's decoder holds.
+"""Decoding cost of a 1280x720 stream: H.264 access units
+(``arcf.client.media.video.StreamDecoder``) next to JPEG frames
+(``arcf.client.media.images.decode_compressed``, what a worker does), on the same real
+frames, single-threaded; and the memory one stream's decoder holds.
 
     python benchmarks/video_decode.py            # ~20 s
 """
@@ -22,10 +23,10 @@ import av
 import cv2
 import numpy as np
 
+from arcf.client.media.images import decode_compressed
+from arcf.client.media.video import StreamDecoder
 from arcf.data import data_root
 from arcf.eval.environment import describe
-from arcf.service.decoding import decode_compressed
-from arcf.service.video import StreamDecoder
 
 
 def rss_mb() -> float:

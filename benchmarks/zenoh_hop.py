@@ -1,7 +1,7 @@
 """What one Zenoh hop costs, without the service: the floor under the service profile's "main
 process" and "worker, the rest" rows, and what a direct link would save.
 
-Two topologies, each process on loopback with ``arcf.service.transport.make_config`` (the
+Two topologies, each process on loopback with ``arcf.client.transport.make_config`` (the
 service's own settings: explicit endpoints, multicast scouting off):
 
 * **router** (what the service does): a bare router, one subscriber and one publisher, both
@@ -41,7 +41,7 @@ from arcf.loadtools.system import cpu_seconds
 #: connects to it are the topology's.
 CHILD = """
 import os, sys, time
-from arcf.service.transport import make_config
+from arcf.client.transport import make_config
 import zenoh
 role, mode, side, endpoint, shm = sys.argv[1:6]
 conf = make_config(mode, listen=[endpoint] if side == "listen" else (),

@@ -50,7 +50,7 @@ BUILD_TAG = "arcf-build:bookworm"
 PYTHON_VERSION = "3.11"
 #: python3-venv brings ensurepip (the image makes a virtualenv); passwd is in minbase already.
 BASE_PACKAGES = ("python3", "python3-venv", "ca-certificates")
-#: The build image's additions: what compiles service/_jpegregion.c (the image's runtime needs
+#: The build image's additions: what compiles client/media/_jpegregion.c (the image's runtime needs
 #: none of it: the build stage copies libjpeg beside the module).
 BUILD_PACKAGES = ("gcc", "libc6-dev", "libjpeg62-turbo-dev", "python3-dev")
 IMAGE_PATH = "/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin"

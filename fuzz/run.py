@@ -31,8 +31,8 @@ CORPUS = HERE / "corpus"
 
 
 def load_extension(path: Path) -> None:
-    """Make ``arcf.service._jpegregion`` the module built at ``path`` (a sanitized build)."""
-    name = "arcf.service._jpegregion"
+    """Make ``arcf.client.media._jpegregion`` the module built at ``path`` (a sanitized build)."""
+    name = "arcf.client.media._jpegregion"
     loader = importlib.machinery.ExtensionFileLoader(name, str(path))
     spec = importlib.util.spec_from_file_location(name, path, loader=loader)
     assert spec is not None
@@ -41,7 +41,7 @@ def load_extension(path: Path) -> None:
     sys.modules[name] = module
     import arcf.service
 
-    arcf.service._jpegregion = module
+    arcf.client.media._jpegregion = module
 
 
 def replay() -> int:
@@ -91,13 +91,6 @@ def fuzz_one(name: str, seconds: int, artifacts: Path, work: Path | None,
         # the modules the targets import lazily
         import targets
 
-        import arcf.adapters.mavlink
-        import arcf.adapters.ros2_types
-        import arcf.schemas
-        import arcf.service.decoding
-        import arcf.service.foxglove
-        import arcf.service.imagecheck
-        import arcf.service.video  # noqa: F401
 
     target = targets.TARGETS[name]
     work = work or Path(tempfile.mkdtemp(prefix=f"arcf-fuzz-{name}-"))

@@ -1,4 +1,4 @@
-"""Build the C region decoder (``service/_jpegregion.c``) with AddressSanitizer and
+"""Build the C region decoder (``client/media/_jpegregion.c``) with AddressSanitizer and
 UndefinedBehaviorSanitizer, and run the decoder's tests, the seed corpus and a bounded fuzz
 run of ``jpeg_region`` through that build.
 

@@ -1,4 +1,4 @@
-"""A pytest plugin (``-p sanitized_plugin``) that makes ``arcf.service._jpegregion`` the
+"""A pytest plugin (``-p sanitized_plugin``) that makes ``arcf.client.media._jpegregion`` the
 sanitized build named by ``ARCF_SANITIZED_JPEGREGION`` before any test imports it
 (``fuzz/sanitize.py`` runs the decoder's tests so)."""
 

@@ -178,7 +178,7 @@ def videos() -> Iterator[tuple[str, bytes]]:
 
 def cdrs() -> Iterator[tuple[str, bytes]]:
     from arcf.adapters import ros2_types as rt
-    from arcf.service.foxglove import compressed_video
+    from arcf.client.foxglove import compressed_video
 
     jpeg = cv2.imencode(".jpg", _picture())[1].tobytes()
     header = rt.message("std_msgs/msg/Header", stamp=rt.TYPES.time(1_700_000_000_123_456_789),

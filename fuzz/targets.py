@@ -9,7 +9,7 @@ process: the fuzzer reports it with the input.
 The targets and what they hold:
 
 ``jpeg_region``
-    the C region decoder (``service/_jpegregion.c``), called directly. Input: 8 bytes giving
+    the C region decoder (``client/media/_jpegregion.c``), called directly. Input: 8 bytes giving
     the rectangle as fractions of the picture, then the JPEG. Holds: ``ValueError`` or a
     rectangle inside the picture that covers the request; not one byte written outside the
     returned rectangle (a guarded buffer: this catches libjpeg's own writes, which no
@@ -73,7 +73,7 @@ def _rectangle(prefix: bytes, width: int, height: int) -> tuple[int, int, int, i
 
 
 def jpeg_region(data: bytes) -> None:
-    from arcf.service import _jpegregion
+    from arcf.client.media import _jpegregion
 
     if len(data) < 8:
         return
@@ -111,8 +111,8 @@ def jpeg_region(data: bytes) -> None:
 
 
 def image(data: bytes) -> None:
+    from arcf.client.media.images import decode_image
     from arcf.schemas import ErrorCode
-    from arcf.service.decoding import decode_image
 
     if not data:
         return
@@ -142,7 +142,13 @@ def message(data: bytes) -> None:
 
 
 def video(data: bytes) -> None:
-    from arcf.service.video import MAX_NAL_UNITS, Outcome, PictureSize, StreamDecoder, nal_units
+    from arcf.client.media.video import (
+        MAX_NAL_UNITS,
+        Outcome,
+        PictureSize,
+        StreamDecoder,
+        nal_units,
+    )
 
     if not data:
         return
@@ -175,7 +181,7 @@ def video(data: bytes) -> None:
 
 def cdr(data: bytes) -> None:
     from arcf.adapters import ros2_types as rt
-    from arcf.service.foxglove import parse_compressed_video
+    from arcf.client.foxglove import parse_compressed_video
 
     if not data:
         return
@@ -190,8 +196,8 @@ def cdr(data: bytes) -> None:
 
 def frame_size(data: bytes) -> None:
     from arcf.adapters.mavlink import frame_size as read_size
-    from arcf.service import _jpegregion
-    from arcf.service.imagecheck import image_size
+    from arcf.client.media import _jpegregion
+    from arcf.client.media.headers import image_size
 
     if not data:
         return

@@ -22,9 +22,9 @@ from collections.abc import Iterator
 import numpy as np
 import zenoh
 
+from arcf.client import TrackingClient
+from arcf.client.transport import ZENOH_SHORT_FLAGS
 from arcf.eval import load_dataset
-from arcf.service.client import TrackingClient
-from arcf.service.settings import ZENOH_SHORT_FLAGS
 
 from .driver import Clip, Fleet, Pacing, SimulatedStream
 from .ledger import Received, percentiles

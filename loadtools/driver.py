@@ -56,7 +56,7 @@ class Clip:
     def as_video(self, codec: str = "h264", fps: int = 30) -> Clip:
         """The same clip as a drone camera's video: one access unit per frame, a keyframe
         every 30 (the first included, so a cycled clip restarts on a keyframe)."""
-        from arcf.service.decoding import decode_compressed
+        from arcf.client.media.images import decode_compressed
 
         from .video import encode_video
 

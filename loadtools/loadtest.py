@@ -30,10 +30,10 @@ from typing import Any
 
 import numpy as np
 
+from arcf.client.media.images import decode_compressed
+from arcf.client.transport import ZENOH_SHORT_FLAGS
 from arcf.eval import load_dataset, score_sequence
-from arcf.service.decoding import decode_compressed
 from arcf.service.scrape import delta, scrape
-from arcf.service.settings import ZENOH_SHORT_FLAGS
 
 from .driver import Clip, Fleet, Pacing
 from .ledger import Received, meets_capacity, percentiles
@@ -238,7 +238,7 @@ def run_load(
     pacing = Pacing(fps=fps, in_flight=in_flight, aligned=aligned)
     with contextlib.ExitStack() as stack:
         if client is None:
-            from arcf.service.client import TrackingClient
+            from arcf.client import TrackingClient
 
             client = stack.enter_context(TrackingClient(connect=connect, prefix=prefix))
         fleet = stack.enter_context(Fleet(client, clips, preset=preset, pacing=pacing,

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import av
 
-from arcf.service.video import KEYFRAME_TYPES, nal_units
+from arcf.client.media.video import KEYFRAME_TYPES, nal_units
 
 #: the RTP clock of every video payload format (RFC 6184, RFC 7798)
 RTP_CLOCK = 90_000

@@ -12,11 +12,11 @@ from typing import cast
 import av
 import numpy as np
 
-from arcf.service.convert import picture_bgr
-from arcf.service.video import CODECS
+from arcf.client.media.convert import picture_bgr
+from arcf.client.media.video import CODECS
 
 #: codec name on the wire (frame ``encoding``, CompressedVideo ``format``) -> FFmpeg's encoder
-#: (the decoder is the service's, ``arcf.service.video.CODECS``)
+#: (the decoder is the service's, ``arcf.client.media.video.CODECS``)
 ENCODERS = {"h264": "libx264", "h265": "libx265"}
 
 

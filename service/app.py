@@ -22,9 +22,10 @@ from collections import OrderedDict
 from typing import Any
 
 from arcf import __version__
+from arcf.client.transport import LOG_FORMAT
 
 from . import multiproc
-from .settings import LOG_FORMAT, ServiceSettings, add_arguments, from_arguments
+from .settings import ServiceSettings, add_arguments, from_arguments
 from .supervision import InFlight, death_cause
 
 log = logging.getLogger(__name__)
@@ -46,12 +47,12 @@ class Service:
         import zenoh
         from prometheus_client import start_http_server
 
+        from arcf.client.transport import open_session
         from arcf.schemas import ErrorCode, ErrorMessage, KeySpace, encode
 
         from . import metrics
         from .cluster import Cluster
         from .control import ControlPlane
-        from .transport import open_session
         from .worker import worker_main
 
         self.keys = KeySpace(s.prefix)
@@ -141,7 +142,8 @@ class Service:
         stream of this instance's, ``_ready-<instance>-<k>``), end it, and return how long
         the start took. Ready is announced only after it: a worker's token says it runs, not
         that a start reaches it through the router, the control plane and back."""
-        from .client import ServiceError, TrackingClient
+        from arcf.client import ServiceError, TrackingClient
+
         from .control import READINESS_PREFIX
 
         s = self.settings

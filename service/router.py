@@ -17,7 +17,7 @@ import signal
 import sys
 import threading
 
-from .transport import add_zenoh_arguments, open_session
+from arcf.client.transport import add_zenoh_arguments, open_session
 
 
 def main(argv: list[str] | None = None) -> int:

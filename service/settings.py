@@ -12,14 +12,10 @@ from dataclasses import MISSING, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any, cast
 
+from arcf.client.transport import ZENOH_SHORT_FLAGS
+
 ENV_PREFIX = "ARCF_SERVICE_"
 
-#: zenoh-python's examples' flags, shared by every command that opens a Zenoh session:
-#: ``-m`` mode, ``-e`` connect endpoint, ``-l`` listen endpoint, ``-c`` Zenoh config file.
-ZENOH_SHORT_FLAGS = {"mode": "-m", "connect": "-e", "listen": "-l", "zenoh_config": "-c"}
-
-#: every arcf process logs lines in this form (the service, its workers, the adapters)
-LOG_FORMAT = "%(asctime)s %(name)s %(message)s"
 
 
 def _about(help: str, choices: tuple[str, ...] | None = None,

@@ -24,6 +24,10 @@ import cv2
 import numpy as np
 
 from arcf import ARCFError, create_tracker, warm_up
+from arcf.client.foxglove import parse_compressed_video
+from arcf.client.media.images import REGION_DECODING, decode_image
+from arcf.client.media.video import CODECS, Decoded, Outcome, StreamDecoder
+from arcf.client.transport import LOG_FORMAT
 from arcf.region import Region, RegionFrame, cover, whole_frame
 from arcf.schemas import (
     ErrorCode,
@@ -47,13 +51,9 @@ from .commands import (
     StartSession,
     StopSession,
 )
-from .decoding import REGION_DECODING, decode_image
-from .foxglove import parse_compressed_video
 from .intake import Inbox, Numbering, Verdict
-from .settings import LOG_FORMAT
 from .stages import StageClock
 from .supervision import InFlight
-from .video import CODECS, Decoded, Outcome, StreamDecoder
 
 log = logging.getLogger(__name__)
 
@@ -199,8 +199,9 @@ class Worker:
                  stop: Any, inflight: InFlight | None = None) -> None:
         import zenoh
 
+        from arcf.client.transport import open_session
+
         from . import metrics  # after the launcher set PROMETHEUS_MULTIPROC_DIR
-        from .transport import open_session
 
         self.index = index
         #: the stream whose frame is being processed, for the launcher to read if this

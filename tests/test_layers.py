@@ -17,22 +17,36 @@ import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
 
-#: folder -> the package it installs as
-PACKAGE = {"arcf": "arcf", "schemas": "arcf.schemas", "service": "arcf.service",
-           "adapters": "arcf.adapters", "loadtools": "arcf.loadtools"}
+
+def _package_dirs() -> dict[str, str]:
+    """The one declaration of the layout: pyproject's ``package-dir`` (package -> folder)."""
+    import tomllib
+
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())
+    return dict(project["tool"]["setuptools"]["package-dir"])
+
+
+#: folder -> the package it installs as, read from pyproject (as tools/linktree.py does)
+PACKAGE = {folder: package for package, folder in _package_dirs().items()}
 
 #: the tracker library: ``arcf`` itself and every ``arcf.*`` that is not another role's package
 LIBRARY = "arcf library"
 
 #: folder -> the packages (dotted prefixes) its modules must never import
 FORBIDDEN = {
-    "arcf": ("arcf.schemas", "arcf.service", "arcf.loadtools", "arcf.adapters"),
-    "schemas": (LIBRARY, "arcf.service", "arcf.loadtools", "arcf.adapters"),
+    "arcf": ("arcf.schemas", "arcf.client", "arcf.service", "arcf.loadtools", "arcf.adapters"),
+    "schemas": (LIBRARY, "arcf.client", "arcf.service", "arcf.loadtools", "arcf.adapters"),
+    # the client side (SDK, media, CDR): shared by stations, adapters and the server, it knows
+    # none of them; of the library, only the region a tracker reads (arcf.region)
+    "client": (LIBRARY, "arcf.service", "arcf.loadtools", "arcf.adapters", "matplotlib"),
     "service": ("arcf.loadtools", "arcf.eval", "matplotlib", "arcf.adapters", "pymavlink"),
-    # an adapter is a client of the service: its SDK and the schemas, not its internals
-    "adapters": ("arcf.loadtools", LIBRARY, "matplotlib", "arcf.service.worker",
-                 "arcf.service.app", "arcf.service.control"),
+    # an adapter is a client of the service: the client package and the schemas, nothing of
+    # the server
+    "adapters": ("arcf.loadtools", LIBRARY, "matplotlib", "arcf.service"),
 }
+
+#: folder -> modules it may import although a rule above forbids their package
+ALLOWED = {"client": ("arcf.region",)}
 
 
 def is_library(name: str) -> bool:
@@ -76,7 +90,8 @@ def violations(folder: str, root: Path = ROOT) -> list[str]:
         for line, name in imported(path, root):
             if folder == "arcf" and name == "arcf":
                 continue  # the package's own __init__
-            if any(forbids(bad, name) for bad in FORBIDDEN[folder]):
+            if any(forbids(bad, name) for bad in FORBIDDEN[folder]) and not any(
+                    forbids(ok, name) for ok in ALLOWED.get(folder, ())):
                 found.append(f"{path.relative_to(root)}:{line} imports {name}")
     return sorted(set(found))
 
@@ -84,6 +99,11 @@ def violations(folder: str, root: Path = ROOT) -> list[str]:
 @pytest.mark.parametrize("folder", sorted(FORBIDDEN))
 def test_package_stays_in_its_layer(folder: str) -> None:
     assert violations(folder) == []
+
+
+def test_every_role_has_its_rules() -> None:
+    """A role folder added to pyproject's package-dir is held to rules here, or fails."""
+    assert set(PACKAGE) - {"loadtools"} == set(FORBIDDEN)
 
 
 def test_the_check_sees_relative_and_local_imports(tmp_path: Path) -> None:
@@ -108,7 +128,7 @@ def test_the_library_is_every_arcf_module_but_the_other_roles() -> None:
 
 
 def test_the_server_loads_without_the_tools() -> None:
-    probe = ("import sys, arcf.service.app, arcf.service.client\n"
+    probe = ("import sys, arcf.service.app, arcf.client\n"
              "bad = sorted(m for m in sys.modules if m.startswith(('arcf.loadtools', "
              "'matplotlib', 'arcf.eval')))\n"
              "print(bad)")
@@ -120,7 +140,7 @@ def test_the_server_loads_without_the_tools() -> None:
 def test_clients_do_not_load_the_tracker() -> None:
     """``arcf`` loads its library lazily: the wire contract, the client SDK and an adapter
     start without the tracker's modules or Numba."""
-    probe = ("import sys, arcf.schemas, arcf.service.client, arcf.adapters.mavlink\n"
+    probe = ("import sys, arcf.schemas, arcf.client, arcf.adapters.mavlink\n"
              "print(sorted(m for m in sys.modules if m == 'numba' or m.startswith("
              "('arcf.tracker', 'arcf.features', 'arcf.admm', 'numba.'))))")
     out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
@@ -135,7 +155,6 @@ def test_the_wheel_installs_one_namespace() -> None:
 
     project = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
     assert all(p == "arcf" or p.startswith("arcf.") for p in project["packages"])
-    assert project["package-dir"] == {pkg: folder for folder, pkg in PACKAGE.items()}
     for folder in PACKAGE:
         subs = {p.parent.relative_to(ROOT).as_posix()
                 for p in (ROOT / folder).rglob("__init__.py")}

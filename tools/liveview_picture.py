@@ -36,10 +36,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     from playwright.sync_api import sync_playwright
 
     from arcf.adapters.liveview import LiveView
+    from arcf.client import TrackingClient
     from arcf.eval import load_dataset
     from arcf.loadtools.procs import ServiceProcess
     from arcf.loadtools.waiting import wait_until
-    from arcf.service.client import TrackingClient
 
     (seq,) = load_dataset("uav123_10fps", sequences=[args.sequence])
     data = [p.read_bytes() for p in seq.frames]

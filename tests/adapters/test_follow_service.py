@@ -25,11 +25,11 @@ from pymavlink import mavutil
 
 from arcf.adapters.gimbal import FollowSettings, GimbalTarget
 from arcf.adapters.mavlink import CameraConfig, MavlinkCameras
+from arcf.client import TrackingClient
 from arcf.loadtools.gimbalsim import SimulatedGimbal, VirtualCamera
 from arcf.loadtools.groundstation import GroundStation
 from arcf.loadtools.procs import ServiceProcess, free_port
 from arcf.loadtools.waiting import wait_until
-from arcf.service.client import TrackingClient
 
 mav = mavutil.mavlink
 pytestmark = pytest.mark.integration

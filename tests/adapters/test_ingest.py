@@ -24,6 +24,8 @@ import pytest
 pytest.importorskip("zenoh")
 
 from arcf.adapters.ingest import CaptureClock, Ingest, parse_source, rtp_sdp
+from arcf.client import TrackingClient
+from arcf.client.media.images import decode_compressed
 from arcf.loadtools.procs import ServiceProcess, free_port
 from arcf.loadtools.senders import (
     RtspServer,
@@ -36,8 +38,6 @@ from arcf.loadtools.senders import (
 from arcf.loadtools.video import decode_video, encode_video
 from arcf.loadtools.waiting import wait_until
 from arcf.schemas import Frame, Result
-from arcf.service.client import TrackingClient
-from arcf.service.decoding import decode_compressed
 
 N, GOP, FPS = 30, 10, 30
 

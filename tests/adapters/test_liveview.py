@@ -22,9 +22,9 @@ pytest.importorskip("playwright.sync_api")
 from playwright.sync_api import sync_playwright
 
 from arcf.adapters.liveview import LiveView, colour_bgr
+from arcf.client import TrackingClient
 from arcf.loadtools.procs import ServiceProcess
 from arcf.loadtools.waiting import wait_until
-from arcf.service.client import TrackingClient
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 pytestmark = [pytest.mark.integration,

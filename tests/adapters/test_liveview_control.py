@@ -19,9 +19,9 @@ import pytest
 pytest.importorskip("zenoh")
 
 from arcf.adapters.liveview import MAX_BODY, LiveView
+from arcf.client import TrackingClient
 from arcf.loadtools.procs import ServiceProcess
 from arcf.loadtools.waiting import wait_until
-from arcf.service.client import TrackingClient
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 pytestmark = pytest.mark.integration
@@ -248,9 +248,9 @@ def test_opened_mid_stream_on_the_video_key_each_box_is_drawn_on_its_own_picture
 
     import zenoh
 
+    from arcf.client.foxglove import compressed_video
+    from arcf.client.media.images import decode_compressed
     from arcf.loadtools.video import encode_video
-    from arcf.service.decoding import decode_compressed
-    from arcf.service.foxglove import compressed_video
 
     images = [decode_compressed(p.read_bytes()) for p in wakeboard7.frames[:30]]
     units = encode_video(images, "h264", fps=10, gop=10, repeat_headers=True)

@@ -27,13 +27,13 @@ from arcf.adapters.mavlink import (
     rectangle_box,
     tracking_status,
 )
+from arcf.client import TrackingClient
 from arcf.data import data_root
 from arcf.eval import load_dataset
 from arcf.loadtools.groundstation import GroundStation
 from arcf.loadtools.procs import ServiceProcess, free_port
 from arcf.loadtools.waiting import wait_until
 from arcf.schemas import Result
-from arcf.service.client import TrackingClient
 
 mav = mavutil.mavlink
 pytestmark = [pytest.mark.integration,

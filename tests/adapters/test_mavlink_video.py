@@ -26,6 +26,9 @@ import zenoh
 
 from arcf.adapters.ingest import Ingest, parse_source, rtp_sdp
 from arcf.adapters.mavlink import CameraConfig, MavlinkCameras, VideoStream
+from arcf.client import TrackingClient
+from arcf.client.foxglove import compressed_video
+from arcf.client.media.images import decode_compressed
 from arcf.loadtools.groundstation import GroundStation
 from arcf.loadtools.procs import ServiceProcess, free_port
 from arcf.loadtools.senders import (
@@ -37,9 +40,6 @@ from arcf.loadtools.senders import (
 )
 from arcf.loadtools.video import encode_video
 from arcf.loadtools.waiting import wait_until
-from arcf.service.client import TrackingClient
-from arcf.service.decoding import decode_compressed
-from arcf.service.foxglove import compressed_video
 
 mav = mavutil.mavlink
 COMP = 100

@@ -28,11 +28,11 @@ from pymavlink import mavutil
 
 from arcf.adapters import ros2_types as rt
 from arcf.adapters.ros2 import Ros2Bridge, topic_key
+from arcf.client import TrackingClient
+from arcf.client.transport import open_session
 from arcf.loadtools.procs import ServiceProcess, free_port
 from arcf.loadtools.waiting import wait_until
 from arcf.schemas import Result
-from arcf.service.client import TrackingClient
-from arcf.service.transport import open_session
 
 mav = mavutil.mavlink
 pytestmark = pytest.mark.integration

@@ -19,14 +19,13 @@ from mcap.reader import make_reader
 
 import arcf
 from arcf.adapters.record import Recorder
+from arcf.client import TrackingClient, foxglove
+from arcf.client.media.images import decode_compressed
 from arcf.eval.metrics import score_sequence
 from arcf.eval.recording import score_recording
 from arcf.loadtools.procs import ServiceProcess
 from arcf.loadtools.video import decode_video, encode_video
 from arcf.loadtools.waiting import wait_until
-from arcf.service import foxglove
-from arcf.service.client import TrackingClient
-from arcf.service.decoding import decode_compressed
 
 pytestmark = pytest.mark.integration
 N = 20

@@ -26,13 +26,13 @@ from arcf.adapters.ros2 import (
     diagnostics,
     topic_key,
 )
+from arcf.client import TrackingClient
+from arcf.client.transport import open_session
 from arcf.data import data_root
 from arcf.eval import load_dataset
 from arcf.loadtools.procs import ServiceProcess
 from arcf.loadtools.waiting import wait_until
 from arcf.schemas import Result
-from arcf.service.client import TrackingClient
-from arcf.service.transport import open_session
 
 # --- the published facts (rmw_zenoh docs/design.md and generated type descriptions) ---------
 COMPRESSED_IMAGE_HASH = "RIHS01_15640771531571185e2efc8a100baf923961a4d15d5569652e6cb6691e8e371a"

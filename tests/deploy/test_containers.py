@@ -32,6 +32,7 @@ import pytest
 pytest.importorskip("zenoh")
 
 import arcf
+from arcf.client import TrackingClient
 from arcf.data import data_root
 from arcf.eval import load_dataset
 from arcf.loadtools.compose import INSTANCES, ComposeStack, stack_env
@@ -39,7 +40,6 @@ from arcf.loadtools.driver import Clip, Fleet, Pacing, failover_fleet
 from arcf.loadtools.ledger import StreamRecord
 from arcf.loadtools.procs import free_port
 from arcf.loadtools.waiting import wait_until
-from arcf.service.client import TrackingClient
 from arcf.service.cluster import owner
 from arcf.service.settings import ServiceSettings
 

@@ -142,8 +142,8 @@ def test_router_config_runs_a_router_the_service_reaches() -> None:
     conf.insert_json5("listen/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
     conf.insert_json5("plugins", "{}")  # no REST port in a test
     with zenoh.open(conf):
+        from arcf.client import TrackingClient
         from arcf.loadtools.procs import ServiceProcess
-        from arcf.service.client import TrackingClient
 
         svc = ServiceProcess("--zenoh-config", str(DEPLOY / "zenoh" / "service.json5"),
                              connect=f"tcp/127.0.0.1:{port}", workers=1)

@@ -10,11 +10,11 @@ import pytest
 
 pytest.importorskip("zenoh")
 
+from arcf.client import TrackingClient
 from arcf.data import data_root
 from arcf.loadtools import demo
 from arcf.loadtools.procs import ServiceProcess, free_port
 from arcf.loadtools.waiting import wait_until
-from arcf.service.client import TrackingClient
 
 pytestmark = [pytest.mark.integration,
               pytest.mark.skipif(not (data_root() / "uav123_10fps").is_dir(),

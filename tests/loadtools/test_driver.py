@@ -409,8 +409,8 @@ def test_run_load_reports_what_the_ledger_saw(tmp_path) -> None:
 
 def test_a_clip_as_video_is_one_access_unit_per_frame_starting_on_a_keyframe(
         wakeboard7) -> None:
+    from arcf.client.media.video import KEYFRAME_TYPES, nal_units
     from arcf.loadtools.video import decode_video
-    from arcf.service.video import KEYFRAME_TYPES, nal_units
 
     clip = Clip.of(wakeboard7, limit=12)
     video = clip.as_video("h264")

@@ -16,11 +16,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from arcf.client import TrackingClient
 from arcf.data import data_root
 from arcf.eval import load_dataset
 from arcf.loadtools.procs import ServiceProcess
 from arcf.loadtools.stress import run_overload, run_soak
-from arcf.service.client import TrackingClient
 from arcf.service.settings import ServiceSettings
 
 pytestmark = [pytest.mark.integration,

@@ -15,11 +15,11 @@ from pathlib import Path
 import pytest
 import zenoh
 
+from arcf.client import ServiceError, TrackingClient
 from arcf.data import data_root
 from arcf.eval import load_dataset
 from arcf.loadtools.procs import ServiceProcess, free_port
 from arcf.schemas import Status, StatusRequest, decode, encode
-from arcf.service.client import ServiceError, TrackingClient
 
 ROOT = Path(__file__).resolve().parents[2]
 DEPLOY = ROOT / "deploy" / "zenoh"

@@ -15,9 +15,9 @@ import pytest
 
 pytest.importorskip("zenoh")
 
+from arcf.client import ServiceError, TrackingClient
 from arcf.loadtools.procs import ServiceProcess
 from arcf.schemas import Ack, ErrorMessage, KeySpace, ReinitRequest, StopRequest, decode, encode
-from arcf.service.client import ServiceError, TrackingClient
 from arcf.service.scrape import by_label, fetch
 
 pytestmark = pytest.mark.integration

@@ -16,12 +16,12 @@ import pytest
 
 pytest.importorskip("zenoh")
 
+from arcf.client import ServiceError, TrackingClient
 from arcf.data import data_root
 from arcf.eval import load_dataset
 from arcf.loadtools.procs import ServiceProcess, worker_pids
 from arcf.loadtools.waiting import wait_until
 from arcf.schemas import ErrorMessage, KeySpace, decode
-from arcf.service.client import ServiceError, TrackingClient
 from arcf.service.scrape import by_label, fetch
 
 pytestmark = [pytest.mark.integration,

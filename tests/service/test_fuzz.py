@@ -19,6 +19,8 @@ from hypothesis import strategies as st
 
 import arcf
 from arcf import ARCFError
+from arcf.client.media.headers import image_size
+from arcf.client.media.images import decode_image
 from arcf.schemas import (
     MESSAGE_TYPES,
     SCHEMA_VERSION,
@@ -29,8 +31,6 @@ from arcf.schemas import (
     decode,
     encode,
 )
-from arcf.service.decoding import decode_image
-from arcf.service.imagecheck import image_size
 from arcf.tracker import validate_box, validate_frame
 
 FAST = settings(max_examples=1000, deadline=None, suppress_health_check=[HealthCheck.too_slow])

@@ -34,7 +34,7 @@ def test_the_corpus_holds_the_pictures_a_decoder_must_survive() -> None:
 def test_a_write_outside_the_rectangle_breaks_the_contract(monkeypatch: pytest.MonkeyPatch
                                                            ) -> None:
     """The guard can fail: a decoder that writes one pixel outside what it returns is caught."""
-    from arcf.service import _jpegregion  # type: ignore[attr-defined]
+    from arcf.client.media import _jpegregion  # type: ignore[attr-defined]
 
     real = _jpegregion.decode_region
 

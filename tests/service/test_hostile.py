@@ -18,6 +18,7 @@ import pytest
 
 pytest.importorskip("zenoh")
 
+from arcf.client import ServiceError, TrackingClient
 from arcf.data import data_root
 from arcf.eval import load_dataset
 from arcf.loadtools.driver import Clip, Fleet, Pacing
@@ -25,7 +26,6 @@ from arcf.loadtools.procs import ServiceProcess
 from arcf.loadtools.waiting import wait_until
 from arcf.presets import available_presets
 from arcf.schemas import ErrorMessage, Frame, KeySpace, decode, encode
-from arcf.service.client import ServiceError, TrackingClient
 from arcf.service.scrape import by_label, fetch
 
 pytestmark = [pytest.mark.integration,
@@ -295,7 +295,7 @@ def test_sessions_of_a_vanished_station_end_and_free_their_places(strict, clip) 
     # a station starts as many sessions as the instance allows, then is SIGKILLed
     script = (
         "import sys, time\n"
-        "from arcf.service.client import TrackingClient\n"
+        "from arcf.client import TrackingClient\n"
         f"c = TrackingClient(connect=[{strict.endpoint!r}])\n"
         "for k in range(4):\n"
         f"    c.start(f'flood-{{k}}', {list(clip.box)!r}, preset='bacf')\n"

@@ -1,4 +1,4 @@
-"""The C region decoder's own checks (``service/_jpegregion.c``), one case each: the buffer's
+"""The C region decoder's own checks (``client/media/_jpegregion.c``), one case each: the buffer's
 size, the rectangle's clamping and refusal, the pictures it leaves to the whole decode, and
 libjpeg's errors and warnings coming back through ``longjmp`` as ``ValueError``.
 ``fuzz/sanitize.py`` runs these on the AddressSanitizer / UBSan build too."""
@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from arcf.service.decoding import REGION_DECODING
+from arcf.client.media.images import REGION_DECODING
 
 pytestmark = pytest.mark.skipif(not REGION_DECODING, reason="the C module is not built")
 
@@ -24,7 +24,7 @@ def jpeg(name: str) -> bytes:
 
 @pytest.fixture(scope="module")
 def jr():  # type: ignore[no-untyped-def]
-    from arcf.service import _jpegregion  # type: ignore[attr-defined]
+    from arcf.client.media import _jpegregion  # type: ignore[attr-defined]
 
     return _jpegregion
 

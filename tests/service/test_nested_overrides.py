@@ -16,10 +16,10 @@ import pytest
 
 pytest.importorskip("zenoh")
 
+from arcf.client import ServiceError, TrackingClient
 from arcf.loadtools.procs import ServiceProcess
 from arcf.presets import PRESETS
 from arcf.schemas import Result
-from arcf.service.client import ServiceError, TrackingClient
 
 pytestmark = pytest.mark.integration
 

@@ -8,8 +8,8 @@ import pytest
 
 pytest.importorskip("zenoh")
 
+from arcf.client import TrackingClient
 from arcf.loadtools.procs import ServiceProcess
-from arcf.service.client import TrackingClient
 from arcf.service.health import check
 
 pytestmark = pytest.mark.integration

@@ -17,12 +17,12 @@ import numpy as np
 import pytest
 import simplejpeg
 
+from arcf.client.media import images as decoding
+from arcf.client.media.convert import converts_by_region, picture_bgr, picture_bgr_region
+from arcf.client.media.images import decode_compressed, decode_jpeg_region
 from arcf.eval.datasets import load_dataset
 from arcf.loadtools.video import encode_video
 from arcf.region import RegionFrame, contains
-from arcf.service import decoding
-from arcf.service.convert import converts_by_region, picture_bgr, picture_bgr_region
-from arcf.service.decoding import decode_compressed, decode_jpeg_region
 
 pytestmark = pytest.mark.skipif(not decoding.REGION_DECODING,
                                 reason="the _jpegregion module was not built")

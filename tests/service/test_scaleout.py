@@ -18,13 +18,13 @@ import pytest
 
 pytest.importorskip("zenoh")
 
+from arcf.client import TrackingClient
 from arcf.data import data_root
 from arcf.eval import load_dataset
 from arcf.loadtools.driver import Clip, failover_fleet
 from arcf.loadtools.ledger import Ledger
 from arcf.loadtools.procs import RouterProcess, ServiceProcess, start_instances
 from arcf.loadtools.waiting import wait_until
-from arcf.service.client import TrackingClient
 from arcf.service.cluster import owner
 
 pytestmark = [pytest.mark.integration,

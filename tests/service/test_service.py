@@ -20,14 +20,14 @@ import itertools
 from collections.abc import Sequence
 
 import arcf
+from arcf.client import ServiceError, TrackingClient
+from arcf.client.media.images import REGION_DECODING, decode_compressed
 from arcf.data import data_root
 from arcf.eval import load_dataset
 from arcf.loadtools.driver import Clip, Fleet, Pacing
 from arcf.loadtools.procs import ServiceProcess as _Service
 from arcf.loadtools.waiting import wait_until
 from arcf.schemas import KeySpace
-from arcf.service.client import ServiceError, TrackingClient
-from arcf.service.decoding import REGION_DECODING, decode_compressed
 from arcf.service.scrape import by_label, fetch
 from arcf.service.settings import ServiceSettings
 from arcf.service.stages import STAGES

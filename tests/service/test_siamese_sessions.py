@@ -14,13 +14,13 @@ import pytest
 
 pytest.importorskip("zenoh")
 
+from arcf.client import ServiceError, TrackingClient
 from arcf.eval import load_dataset
 from arcf.eval.metrics import overlaps
 from arcf.loadtools.procs import ServiceProcess
 from arcf.loadtools.waiting import Arrivals
 from arcf.models import models_root
 from arcf.schemas import Result
-from arcf.service.client import ServiceError, TrackingClient
 
 pytestmark = [pytest.mark.integration,
               pytest.mark.skipif(not (models_root() / "nanotrack_v2").is_dir(),

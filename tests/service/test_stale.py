@@ -17,11 +17,11 @@ import pytest
 
 pytest.importorskip("zenoh")
 
+from arcf.client import TrackingClient
 from arcf.data import data_root
 from arcf.loadtools.driver import Clip
 from arcf.loadtools.procs import ServiceProcess
 from arcf.loadtools.waiting import Arrivals
-from arcf.service.client import TrackingClient
 
 pytestmark = [pytest.mark.integration,
               pytest.mark.skipif(not (data_root() / "uav123_10fps").is_dir(),

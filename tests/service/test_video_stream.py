@@ -15,13 +15,13 @@ import pytest
 pytest.importorskip("zenoh")
 
 import arcf
+from arcf.client import TrackingClient
+from arcf.client.foxglove import compressed_video
+from arcf.client.media.images import decode_compressed
 from arcf.loadtools.procs import ServiceProcess
 from arcf.loadtools.video import decode_video, encode_video
 from arcf.loadtools.waiting import wait_until
 from arcf.schemas import ErrorMessage, KeySpace, decode
-from arcf.service.client import TrackingClient
-from arcf.service.decoding import decode_compressed
-from arcf.service.foxglove import compressed_video
 
 pytestmark = pytest.mark.integration
 GOP = 10

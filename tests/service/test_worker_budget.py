@@ -14,6 +14,7 @@ import pytest
 
 pytest.importorskip("zenoh")
 
+from arcf.client import TrackingClient
 from arcf.data import data_root
 from arcf.eval import load_dataset
 from arcf.loadtools.driver import Clip
@@ -21,7 +22,6 @@ from arcf.loadtools.procs import ServiceProcess
 from arcf.loadtools.video import encode_video
 from arcf.loadtools.waiting import wait_until
 from arcf.schemas import ErrorMessage, KeySpace, decode
-from arcf.service.client import TrackingClient
 from arcf.service.scrape import by_label, fetch
 
 pytestmark = [pytest.mark.integration,
@@ -179,7 +179,7 @@ def test_a_worker_over_its_memory_bound_resets_its_decoders_and_streams_resume(
     """With worker_max_rss_mb below what any worker uses, every second the worker drops its
     video decoders (told and counted, cause 'memory'); the stream resumes at its next
     keyframe each time, so results keep coming."""
-    from arcf.service.decoding import decode_compressed
+    from arcf.client.media.images import decode_compressed
 
     images = [decode_compressed(f) for f in clip.frames[:30]]
     units = encode_video(images, "h264", fps=30, gop=10)

@@ -1,4 +1,4 @@
-"""Partial JPEG decompression (service/_jpegregion.c): libjpeg-turbo's jpeg_skip_scanlines and
+"""Partial JPEG decompression (client/media/_jpegregion.c): libjpeg-turbo's jpeg_skip_scanlines and
 jpeg_crop_scanline."""
 
 import numpy as np

@@ -7,7 +7,7 @@ service ingests next to its own frame messages; and Foxglove opens MCAP recordin
 channels use its schemas (compressed image or video, image annotations), which
 ``arcf.adapters.record`` writes. Both need the same definitions: they are declared once, here, in
 the ``foxglove_msgs`` ROS 2 package's text (the form Foxglove reads as ``ros2msg`` schemas),
-and ``rosbags`` serialises and parses their CDR (:mod:`arcf.service.cdr`).
+and ``rosbags`` serialises and parses their CDR (:mod:`arcf.client.cdr`).
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Client SDK for ground stations: publish frames, control sessions, receive results.
 
-    from arcf.service.client import TrackingClient
+    from arcf.client import TrackingClient
     with TrackingClient() as client:                      # connects to tcp/127.0.0.1:7447
         results = client.results("drone-1")                # subscribe before starting
         ack = client.start("drone-1", (x, y, w, h), preset="arcf-hc")

@@ -24,7 +24,7 @@ import simplejpeg
 from arcf.region import Region, RegionFrame, area
 from arcf.schemas import ErrorCode
 
-from .imagecheck import image_size
+from .headers import image_size
 
 _jpegregion: ModuleType | None
 try:

@@ -3,7 +3,7 @@
 ``rosbags`` (a maintained pure-Python ROS 2 toolkit) carries each distribution's standard
 messages, serialises and parses CDR and computes type hashes; packages it does not carry
 (Foxglove's schemas, vision_msgs) are registered from their ``.msg`` text. A
-:class:`MessageTypes` is one such set: ``arcf.service.foxglove`` and
+:class:`MessageTypes` is one such set: ``arcf.client.foxglove`` and
 ``arcf.adapters.ros2_types`` each declare theirs with it.
 """
 

@@ -9,7 +9,12 @@ from typing import Any
 
 import zenoh
 
-from .settings import ZENOH_SHORT_FLAGS
+#: zenoh-python's examples' flags, shared by every command that opens a Zenoh session:
+#: ``-m`` mode, ``-e`` connect endpoint, ``-l`` listen endpoint, ``-c`` Zenoh config file.
+ZENOH_SHORT_FLAGS = {"mode": "-m", "connect": "-e", "listen": "-l", "zenoh_config": "-c"}
+
+#: every arcf process logs lines in this form (the service, its workers, the adapters)
+LOG_FORMAT = "%(asctime)s %(name)s %(message)s"
 
 
 def add_zenoh_arguments(parser: Any, *, listen_default: str = "") -> None:

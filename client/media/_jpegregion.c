@@ -4,7 +4,7 @@
  * IDCT, upsampling or colour conversion is done), jpeg_crop_scanline limits every decoded row
  * to the iMCU columns covering it, and decompression stops after its last row: a window
  * around a small target costs a fraction of the whole picture. The pixels land where the
- * whole picture's would, in a caller's frame-sized buffer (service/decoding.py says when they
+ * whole picture's would, in a caller's frame-sized buffer (client/media/images.py says when they
  * equal the whole decode's; tests/service/test_region_decode.py checks it bit for bit).
  *
  * decode_region(data, out, top, left, bottom, right) -> (top, left, bottom, right)
