@@ -31,7 +31,6 @@ if TYPE_CHECKING:
     from .hybrid import HybridTracker
     from .models import ModelNotFoundError
     from .presets import (
-        ALL_PRESETS,
         ARCF_H,
         ARCF_HC,
         BACF,
@@ -41,9 +40,11 @@ if TYPE_CHECKING:
         TrackerParams,
         make_params,
     )
+    from .registry import ALL_PRESETS, create_tracker
     from .run import SequenceRun, Step, run_sequence, track_frames
     from .siamese import SiameseTracker
-    from .tracker import ARCFTracker, Tracker, TrackResult, create_tracker
+    from .tracker import ARCFTracker
+    from .types import Tracker, TrackResult
     from .warmup import warm_up
 
 try:  # the one place the version is written is pyproject.toml
@@ -56,10 +57,13 @@ _HOME = {
     **dict.fromkeys(("ARCFError", "ColorNamesNotFoundError", "InvalidBoxError",
                      "InvalidFrameError",
     "ModelNotFoundError", "NotInitializedError", "UnknownPresetError"), "errors"),
-    **dict.fromkeys(("ALL_PRESETS", "ARCF_H", "ARCF_HC", "BACF", "PRESETS", "RELEASE_COMPATIBLE",
+    "ALL_PRESETS": "registry",
+    **dict.fromkeys(("ARCF_H", "ARCF_HC", "BACF", "PRESETS", "RELEASE_COMPATIBLE",
                      "ScaleFilterParams", "TrackerParams", "make_params"), "presets"),
     **dict.fromkeys(("SequenceRun", "Step", "run_sequence", "track_frames"), "run"),
-    **dict.fromkeys(("ARCFTracker", "TrackResult", "Tracker", "create_tracker"), "tracker"),
+    **dict.fromkeys(("TrackResult", "Tracker"), "types"),
+    "ARCFTracker": "tracker",
+    "create_tracker": "registry",
     "SiameseTracker": "siamese",
     "HybridTracker": "hybrid",
     "ModelNotFoundError": "models",

@@ -21,9 +21,8 @@ from . import __version__
 from .errors import ARCFError
 from .eval.datasets import DatasetError
 from .eval.datasets import list_frames as dataset_frames
-from .presets import ALL_PRESETS
+from .registry import ALL_PRESETS, create_tracker
 from .run import track_frames
-from .tracker import create_tracker
 
 
 def list_frames(folder: Path) -> list[Path]:

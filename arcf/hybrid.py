@@ -31,7 +31,8 @@ from .presets import HybridParams, SiameseParams
 from .region import Region, RegionFrame, whole_frame
 from .siamese import SiameseTracker
 from .state import StateParams, TrackState
-from .tracker import ARCFTracker, Box, TrackResult
+from .tracker import ARCFTracker
+from .types import Box, TrackResult
 
 
 def _centre(box: Box) -> tuple[float, float]:

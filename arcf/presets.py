@@ -363,56 +363,6 @@ ARCF_NANO = HybridParams(
         state=StateParams(weights=(1.3058, 2.4204, -0.5922, -3.0288, 0.3066, 0.3689),
                           bias=1.6131)))
 
-#: every preset a tracker can be created from: ARCF's (overridable), the Siamese trackers and
-#: the hybrid (as they are)
-ALL_PRESETS: dict[str, TrackerParams | SiameseParams | HybridParams] = {
-    **PRESETS, **{p.name: p for p in (NANOTRACK, VITTRACK, ARCF_NANO)}}
-
-
-def available_presets(models_dir: Any = None) -> dict[str, str]:
-    """Every preset, and why it cannot run here ("" when it can): a Siamese network's files
-    missing or altered under ``models_dir`` (:func:`arcf.models.model_paths`)."""
-    from .models import ModelNotFoundError, model_paths
-
-    out: dict[str, str] = {}
-    checked: dict[str, str] = {}
-    for name, p in ALL_PRESETS.items():
-        network = getattr(p, "network", None)
-        if network is None:
-            out[name] = ""
-            continue
-        if network not in checked:
-            try:
-                model_paths(network, models_dir)
-                checked[network] = ""
-            except ModelNotFoundError as exc:
-                checked[network] = str(exc)
-        out[name] = checked[network]
-    return out
-
-
-def preset_params(preset: str | TrackerParams | SiameseParams | HybridParams,
-                  **overrides: Any) -> TrackerParams | SiameseParams | HybridParams:
-    """Any preset's parameters: ARCF's with :func:`make_params`' overrides, the Siamese
-    trackers' and the hybrid's as they are (an override is refused, naming the preset)."""
-    if isinstance(preset, (SiameseParams, HybridParams)):
-        base: TrackerParams | SiameseParams | HybridParams = preset
-    elif isinstance(preset, TrackerParams):
-        return make_params(preset, **overrides)
-    else:
-        key = str(preset).lower().replace("_", "-")
-        if key not in ALL_PRESETS:
-            raise UnknownPresetError(
-                f"unknown preset {preset!r}; choose one of {', '.join(sorted(ALL_PRESETS))}")
-        base = ALL_PRESETS[key]
-        if isinstance(base, TrackerParams):
-            return make_params(base, **overrides)
-    if overrides:
-        raise InvalidParameterError(
-            f"preset {base.name!r} takes no overrides (got {sorted(overrides)}); its parameters "
-            "are the network's and OpenCV's")
-    return base
-
 #: The overrides that turn a preset into the authors' release, the configuration whose boxes
 #: are compared with the release's own runs (docs/benchmarks.md, "Fidelity"):
 #: ``create_tracker("arcf-h", **RELEASE_COMPATIBLE)``. fHOG replays the SSE instructions of
@@ -591,6 +541,11 @@ def _nested(base: Any, group: str, value: Any) -> Any:
     return dataclasses.replace(base, **value)
 
 
+def preset_key(name: str) -> str:
+    """A preset's name as the registry holds it: ``"ARCF_HC"`` and ``"arcf-hc"`` are one."""
+    return str(name).lower().replace("_", "-")
+
+
 def make_params(preset: str | TrackerParams, **overrides: Any) -> TrackerParams:
     """A preset with keyword overrides, e.g. ``make_params("arcf-h", aberrance="release")``.
 
@@ -601,7 +556,7 @@ def make_params(preset: str | TrackerParams, **overrides: Any) -> TrackerParams:
     if isinstance(preset, TrackerParams):
         base = preset
     else:
-        key = str(preset).lower().replace("_", "-")
+        key = preset_key(preset)
         if key not in PRESETS:
             raise UnknownPresetError(
                 f"unknown preset {preset!r}; choose one of {', '.join(sorted(PRESETS))}"

@@ -10,7 +10,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .tracker import Box, Tracker, TrackResult
+from .types import Box, Tracker, TrackResult
 
 
 @dataclass

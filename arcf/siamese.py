@@ -30,7 +30,7 @@ from .models import model_paths
 from .presets import SiameseParams
 from .region import Region, RegionFrame, whole_frame
 from .state import TrackMonitor, TrackState
-from .tracker import Box, TrackResult, validate_box, validate_frame
+from .types import Box, TrackResult, validate_box, validate_frame
 
 
 def opencv_tracker(network: str, models_dir: str | Path | None = None) -> Any:
@@ -66,7 +66,9 @@ def as_bgr(frame: np.ndarray) -> np.ndarray:
 class SiameseTracker:
     """NanoTrack or VitTrack (:class:`~arcf.presets.SiameseParams`), the field's interface."""
 
-    def __init__(self, params: SiameseParams, models_dir: str | Path | None = None) -> None:
+    def __init__(self, params: SiameseParams, models_dir: str | Path | None = None, *,
+                 colornames_path: str | Path | None = None) -> None:
+        # colornames_path: the registry's common signature (arcf.registry); unused here
         self.params = params
         self._models_dir = models_dir
         # the files are checked now, so a missing network fails at creation, not mid-stream

@@ -2,7 +2,7 @@
 
 A correlation filter always returns a box, target or not. What tells a failure is the shape of
 its response: a sharp, tall peak while the filter sees what it learnt, a low, flat one when it
-does not. Per frame the tracker reports three signals (:class:`arcf.tracker.TrackResult`):
+does not. Per frame the tracker reports three signals (:class:`arcf.types.TrackResult`):
 
 * ``psr``, the peak-to-sidelobe ratio of the response map;
 * ``peak``, the response maximum;

@@ -70,7 +70,7 @@ def _track_a_little() -> None:
     """
     from .errors import ColorNamesNotFoundError
     from .presets import PRESETS
-    from .tracker import create_tracker
+    from .registry import create_tracker
 
     yy, xx = np.mgrid[0:480, 0:480]
     frame = np.stack([(xx * 3 + yy) % 256, (yy * 5) % 256, (xx * yy) % 256], -1).astype(np.uint8)

@@ -26,15 +26,9 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, cast
 
-from arcf import ARCFError
-from arcf.presets import (
-    ALL_PRESETS,
-    HOST_PARAMETERS,
-    TUNABLE,
-    TrackerParams,
-    available_presets,
-    preset_params,
-)
+from arcf.errors import InvalidParameterError, UnknownPresetError
+from arcf.presets import HOST_PARAMETERS, TUNABLE, TrackerParams
+from arcf.registry import ALL_PRESETS, available_presets, request_params
 from arcf.schemas import (
     Ack,
     ErrorCode,
@@ -534,21 +528,15 @@ class ControlPlane:
         return stream if stream is not None else "request:" + request.request_id
 
     def _start(self, req: StartRequest) -> Ack:
-        preset = req.preset.lower().replace("_", "-")
-        if preset not in ALL_PRESETS:
-            raise _Refused(ErrorCode.UNKNOWN_PRESET, f"unknown preset {req.preset!r}; choose "
-                           f"one of {', '.join(sorted(ALL_PRESETS))}")
+        try:  # the library's one check: the name, no host path, each override's type and range
+            preset, _ = request_params(req.preset, req.overrides)
+        except InvalidParameterError as exc:
+            raise _Refused(ErrorCode.INVALID_PARAMETER, str(exc)) from exc
+        except UnknownPresetError as exc:
+            raise _Refused(ErrorCode.UNKNOWN_PRESET, str(exc)) from exc
         if preset in self.unavailable:
             raise _Refused(ErrorCode.UNKNOWN_PRESET, f"preset {preset!r} is not available on "
                            f"this service: {self.unavailable[preset]}")
-        host_only = sorted(set(req.overrides) & HOST_PARAMETERS)
-        if host_only:
-            raise _Refused(ErrorCode.INVALID_PARAMETER, f"{', '.join(host_only)} names a file "
-                           "on the service's host; a request cannot set it")
-        try:  # type and range of every override (arcf.presets.TUNABLE), before any worker
-            preset_params(req.preset, **dict(req.overrides))
-        except ARCFError as exc:
-            raise _Refused(ErrorCode.INVALID_PARAMETER, str(exc)) from exc
         quarantined = self.quarantine_reason(req.stream_id)
         if quarantined is not None:
             raise _Refused(ErrorCode.QUARANTINED, quarantined)

@@ -19,7 +19,7 @@ from typing import Any
 
 from ..data import data_root
 from ..errors import ARCFError
-from ..presets import ALL_PRESETS, preset_params
+from ..registry import ALL_PRESETS, preset_params
 from .datasets import DatasetError, load_dataset
 from .metrics import DatasetScore
 from .results import ResultsError, read_fps, score_folder

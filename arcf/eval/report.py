@@ -43,7 +43,7 @@ if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
     from arcf.eval.failure import CurvePoint
-    from arcf.tracker import TrackResult
+    from arcf.types import TrackResult
 
 __all__ = [
     "MAP_DIFF_SUFFIX",

@@ -92,8 +92,8 @@ def run_one(spec: TrackerSpec, seq: Sequence, out: Path) -> SequenceRunInfo:
     """Track one sequence (OPE) and write its files. Runs inside a worker process."""
     import cv2
 
+    from ..registry import create_tracker
     from ..run import run_sequence
-    from ..tracker import create_tracker
 
     cv2.setNumThreads(1)
     tracker = create_tracker(spec.preset, **dict(spec.overrides))

@@ -14,7 +14,7 @@ from arcf import cli
 from arcf.cli import main
 from arcf.eval import read_results
 from arcf.presets import PRESETS
-from arcf.tracker import TrackResult
+from arcf.types import TrackResult
 
 
 def _frames(folder: Path, n: int = 12) -> tuple[float, float, float, float]:

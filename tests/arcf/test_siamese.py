@@ -16,7 +16,7 @@ from arcf.data import data_root
 from arcf.eval import load_dataset, load_sequence
 from arcf.eval.metrics import overlaps
 from arcf.models import NETWORKS, ModelNotFoundError, model_paths, models_root
-from arcf.presets import ALL_PRESETS, available_presets, preset_params
+from arcf.registry import ALL_PRESETS, available_presets, preset_params
 from arcf.state import TrackState
 
 pytestmark = pytest.mark.skipif(not (models_root() / "nanotrack_v2").is_dir(),

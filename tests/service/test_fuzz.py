@@ -31,7 +31,7 @@ from arcf.schemas import (
     decode,
     encode,
 )
-from arcf.tracker import validate_box, validate_frame
+from arcf.types import validate_box, validate_frame
 
 FAST = settings(max_examples=1000, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 SLOW = settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])

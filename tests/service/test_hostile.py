@@ -24,7 +24,7 @@ from arcf.eval import load_dataset
 from arcf.loadtools.driver import Clip, Fleet, Pacing
 from arcf.loadtools.procs import ServiceProcess
 from arcf.loadtools.waiting import wait_until
-from arcf.presets import available_presets
+from arcf.registry import available_presets
 from arcf.schemas import ErrorMessage, Frame, KeySpace, decode, encode
 from arcf.service.scrape import by_label, fetch
 
