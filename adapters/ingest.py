@@ -49,7 +49,7 @@ import cv2
 import numpy as np
 
 from arcf.client import TrackingClient
-from arcf.client.media.video import KEYFRAME_TYPES, PARAMETER_TYPES, nal_units
+from arcf.client.media.encodings import video_codec
 
 from ._command import add_service_arguments, prepare, wait_for_service
 
@@ -424,15 +424,17 @@ class Ingest:
         # FFmpeg's filter writes start codes and puts the parameter sets in front of keyframes
         bsf = (av.bitstream.BitStreamFilterContext(f"{codec}_mp4toannexb", stream)
                if extradata[:1] == b"\x01" else None)
+        wire = video_codec(PASSED_THROUGH[codec])
+        assert wire is not None  # PASSED_THROUGH names the wire's video encodings
         params = ([] if bsf is not None else
-                  [(k, u) for k, u in _units(extradata, codec) if k in PARAMETER_TYPES[codec]])
+                  [(k, u) for k, u in _units(extradata, codec) if k in wire.parameter_types])
         try:
             for packet, corrupt in self._packets(container, stream, lost_in_probe):
                 pts = None if packet.pts is None or tb is None else packet.pts * tb
                 for out in (bsf.filter(packet) if bsf is not None else [packet]):
                     data = bytes(out)
                     kinds = {k for k, _ in _units(data, codec)}
-                    keyframe = bool(kinds & KEYFRAME_TYPES[codec])
+                    keyframe = bool(kinds & wire.keyframe_types)
                     if keyframe and params:  # out-of-band parameter sets, in front
                         data = b"".join(u for k, u in params if k not in kinds) + data
                     yield _Unit(pts, keyframe, PASSED_THROUGH[codec], data, corrupt=corrupt)
@@ -491,8 +493,11 @@ class Ingest:
         self.counts["keyframes"] += unit.keyframe
 
 def _units(data: bytes, codec: str) -> list[tuple[int, bytes]]:
+    """``data``'s NAL units (FFmpeg's ``codec``); none where it holds too many."""
+    wire = video_codec(PASSED_THROUGH[codec])
+    assert wire is not None  # PASSED_THROUGH names the wire's video encodings
     try:
-        return nal_units(data, codec)
+        return wire.nal_units(data)
     except ValueError:
         return []
 

@@ -51,9 +51,8 @@ import numpy as np
 from prometheus_client import CONTENT_TYPE_LATEST, CollectorRegistry, Counter, generate_latest
 
 from arcf.client import TrackingClient
-from arcf.client.media.headers import image_size
-from arcf.client.media.images import decode_compressed
-from arcf.client.media.video import CODECS, Outcome, StreamDecoder
+from arcf.client.media.encodings import codec_of, decode_image
+from arcf.client.media.video import Outcome, StreamDecoder
 from arcf.schemas import Result
 
 from ._command import add_service_arguments, prepare, wait_for_service
@@ -211,9 +210,9 @@ class Watch:
             self._unit_ready.clear()
             while self._units and not self._stop.is_set():
                 frame = self._units.popleft()
-                codec = CODECS[frame.encoding]
-                if self._decoder is None or self._decoder.codec != codec:
-                    self._decoder = StreamDecoder(codec, self.max_pixels)
+                codec = codec_of(frame.encoding)
+                if self._decoder is None or self._decoder.codec != codec.ffmpeg:
+                    self._decoder = codec.stream_decoder(self.max_pixels)
                 self._unit_times[frame.seq] = frame.capture_ts_ns
                 while len(self._unit_times) > _VIDEO_QUEUE:
                     self._unit_times.popitem(last=False)
@@ -339,19 +338,14 @@ def _finite(values: Sequence[float]) -> list[float | None]:
 
 
 def _picture(frame: TapFrame, max_pixels: int) -> np.ndarray:
-    """A frame's pixels; ``ValueError`` when it cannot be read or declares more than
-    ``max_pixels`` (read from its header: a decompression bomb is never decoded)."""
-    if frame.encoding in ("jpeg", "png"):
-        size = image_size(frame.payload)
-        if size is None or size[0] * size[1] > max_pixels:
-            raise ValueError(f"{frame.encoding} of size {size}: unreadable or above "
-                             f"{max_pixels} pixels")
-        return decode_compressed(frame.payload)
-    channels = 3 if frame.encoding == "bgr8" else 1
-    if frame.width is None or frame.height is None or frame.width * frame.height > max_pixels:
-        raise ValueError(f"raw frame of {frame.width}x{frame.height}: above {max_pixels} pixels")
-    return np.frombuffer(frame.payload, dtype=np.uint8).reshape(
-        frame.height, frame.width, channels).squeeze()
+    """A frame's pixels, checked and decoded as a worker does (the encoding table);
+    ``ValueError`` when it cannot be read or declares more than ``max_pixels`` (read from its
+    header: a decompression bomb is never decoded)."""
+    pixels, problem = decode_image(frame, max_pixels)
+    if pixels is None:
+        raise ValueError(problem[1] if problem else f"cannot decode {frame.encoding} frame")
+    assert isinstance(pixels, np.ndarray)  # no region asked for: the whole picture
+    return pixels
 
 
 class LiveView:

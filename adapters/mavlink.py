@@ -60,15 +60,14 @@ import time
 from collections import Counter
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 os.environ.setdefault("MAVLINK20", "1")
 
 from pymavlink import mavutil
 
 from arcf.client import ServiceError, TrackingClient
-from arcf.client.media.headers import image_size
-from arcf.client.media.video import CODECS, PictureSize
+from arcf.client.media.encodings import codec_of
 from arcf.schemas import ErrorCode, Frame, Result, ResultStatus, TrackState
 
 from ._command import (
@@ -83,6 +82,9 @@ from ._command import (
 )
 from .gimbal import FollowSettings, GimbalFollower, GimbalTarget
 from .tap import DEFAULT_VIDEO_KEY, StreamTap, TapFrame
+
+if TYPE_CHECKING:  # PyAV loads with a video stream's first unit, not with the adapter
+    from arcf.client.media.video import PictureSize
 
 log = logging.getLogger(__name__)
 mav = mavutil.mavlink
@@ -183,14 +185,15 @@ def frame_size(frame: Frame | TapFrame, max_pixels: int = 4096 * 2160,
     for video from the stream's latest keyframe (``video``, which decodes it once per set of
     parameter sets). Raises ``ValueError`` for a size that cannot be read or is above
     ``max_pixels`` (the service's default limit)."""
-    encoding = getattr(frame.encoding, "value", frame.encoding)
+    codec = codec_of(frame.encoding)
+    encoding = codec.encoding.value
     if frame.width and frame.height:
         size = (frame.width, frame.height)
     else:
         read = None
-        if encoding in ("jpeg", "png"):
-            read = image_size(frame.payload)
-        elif encoding in CODECS and video is not None:
+        if codec.read_size is not None:
+            read = codec.read_size(frame.payload)
+        elif codec.is_video and video is not None:
             read = video.read()
             if read is None:
                 raise ValueError(f"no {encoding} keyframe with its parameter sets yet")
@@ -380,10 +383,10 @@ class MavlinkCameras:
         def seen(frame: TapFrame) -> None:
             size = None
             if frame.is_video:  # its size is in its keyframes: kept for a command's need
-                codec = CODECS[frame.encoding]
+                codec = codec_of(frame.encoding)
                 size = cam.video_size
-                if size is None or size.codec != codec:
-                    size = PictureSize(codec, self.max_pixels)
+                if size is None or size.codec != codec.ffmpeg:
+                    size = codec.size_reader(self.max_pixels)
                 size.feed(frame.payload)
             with self._state_lock:
                 cam.last_frame, cam.frame_at = frame, time.monotonic()

@@ -36,12 +36,11 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, BinaryIO
 
-import cv2
 import numpy as np
 from mcap.writer import CompressionType, Writer
 
 from arcf.client import TrackingClient, foxglove
-from arcf.client.media.video import CODECS, KEYFRAME_TYPES, nal_units
+from arcf.client.media.encodings import codec_of, decode_image, encode_image
 from arcf.schemas import Result
 from arcf.schemas.export import message_schema
 
@@ -54,11 +53,6 @@ log = logging.getLogger(__name__)
 PALETTE = ((0.0, 1.0, 0.0, 1.0), (1.0, 0.0, 1.0, 1.0), (0.0, 1.0, 1.0, 1.0),
            (1.0, 0.6, 0.0, 1.0), (1.0, 1.0, 0.0, 1.0), (0.3, 0.5, 1.0, 1.0))
 RESULTS_SCHEMA = "arcf.result"
-
-
-def is_keyframe(unit: bytes, encoding: str) -> bool:
-    codec = CODECS[encoding]
-    return any(kind in KEYFRAME_TYPES[codec] for kind, _ in nal_units(unit, codec))
 
 
 def result_annotations(result: Result, colour: tuple[float, float, float, float]) -> Any:
@@ -161,7 +155,8 @@ class Recorder:
         with self._lock:
             if self._closed:
                 return
-            starts_segment = not frame.is_video or is_keyframe(frame.payload, frame.encoding)
+            starts_segment = (not frame.is_video
+                              or codec_of(frame.encoding).is_keyframe(frame.payload))
             if self._writer is None or (starts_segment and self._file is not None
                                         and self._file.tell() >= self.segment_bytes):
                 self._close_file()
@@ -221,16 +216,13 @@ class Recorder:
 
 def _compressed(frame: TapFrame) -> tuple[str, bytes]:
     """A picture frame as CompressedImage's (format, data): as sent, or raw pixels as JPEG."""
-    if frame.encoding in ("jpeg", "png"):
+    if codec_of(frame.encoding).kind == "image":
         return frame.encoding, frame.payload
-    channels = 3 if frame.encoding == "bgr8" else 1
-    assert frame.width is not None and frame.height is not None  # checked by the schema
-    pixels = np.frombuffer(frame.payload, dtype=np.uint8).reshape(
-        frame.height, frame.width, channels)
-    ok, buf = cv2.imencode(".jpg", pixels, [cv2.IMWRITE_JPEG_QUALITY, 90])
-    if not ok:
-        raise ValueError("raw frame could not be compressed")
-    return "jpeg", buf.tobytes()
+    pixels, problem = decode_image(frame)
+    if pixels is None:
+        raise ValueError(problem[1] if problem else "raw frame could not be read")
+    assert isinstance(pixels, np.ndarray)  # no region asked for: the whole picture
+    return "jpeg", encode_image(pixels, "jpeg", 90)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

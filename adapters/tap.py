@@ -18,6 +18,7 @@ from typing import Any
 
 from arcf.client import TrackingClient
 from arcf.client.foxglove import parse_compressed_video
+from arcf.client.media.encodings import video_codec
 from arcf.schemas import Frame, Result
 
 log = logging.getLogger(__name__)
@@ -43,7 +44,7 @@ class TapFrame:
 
     @property
     def is_video(self) -> bool:
-        return self.encoding in ("h264", "h265")
+        return video_codec(self.encoding) is not None
 
 
 class StreamTap:
@@ -69,7 +70,7 @@ class StreamTap:
             except ValueError:
                 self.malformed += 1
                 return
-            if unit.format not in ("h264", "h265"):
+            if video_codec(unit.format) is None:
                 self.malformed += 1
                 return
             on_frame(TapFrame(stream_id, seq, unit.timestamp_ns, unit.format, unit.data,

@@ -18,7 +18,6 @@ import uuid
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any, Generic, TypeVar
 
-import cv2
 import numpy as np
 import zenoh
 
@@ -41,6 +40,7 @@ from arcf.schemas import (
     encode,
 )
 
+from .media.encodings import encode_image
 from .transport import open_session
 
 M = TypeVar("M", bound=Message)
@@ -174,17 +174,7 @@ class TrackingClient:
         width, height = size if size is not None and data is not None else (None, None)
         if image is not None:
             height, width = image.shape[:2]
-            if encoding == "jpeg":
-                ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, quality])
-            elif encoding == "png":
-                ok, buf = cv2.imencode(".png", image)
-            elif encoding in ("bgr8", "gray8"):
-                ok, buf = True, np.ascontiguousarray(image)
-            else:
-                raise ValueError(f"unknown encoding {encoding!r}")
-            if not ok:
-                raise ValueError("image could not be encoded")
-            data = buf.tobytes()
+            data = encode_image(image, encoding, quality)
         assert data is not None  # given, or encoded just above
         if len(data) > self.max_payload:
             raise ValueError(f"a frame of {len(data)} bytes is above max_payload "

@@ -111,7 +111,7 @@ def jpeg_region(data: bytes) -> None:
 
 
 def image(data: bytes) -> None:
-    from arcf.client.media.images import decode_image
+    from arcf.client.media.encodings import decode_image
     from arcf.schemas import ErrorCode
 
     if not data:
@@ -142,12 +142,11 @@ def message(data: bytes) -> None:
 
 
 def video(data: bytes) -> None:
+    from arcf.client.media.nal import MAX_NAL_UNITS, nal_units
     from arcf.client.media.video import (
-        MAX_NAL_UNITS,
         Outcome,
         PictureSize,
         StreamDecoder,
-        nal_units,
     )
 
     if not data:

@@ -22,10 +22,11 @@ import time
 from collections.abc import Callable, Sequence
 from fractions import Fraction
 from pathlib import Path
+from typing import cast
 
 import av
 
-from arcf.client.media.video import KEYFRAME_TYPES, nal_units
+from arcf.client.media.encodings import codec_of
 
 #: the RTP clock of every video payload format (RFC 6184, RFC 7798)
 RTP_CLOCK = 90_000
@@ -37,7 +38,7 @@ def write_video_file(units: Sequence[bytes], path: Path, size: tuple[int, int],
     (MP4 and MKV store them length-prefixed with the parameter sets in the configuration:
     FFmpeg converts)."""
     with av.open(str(path), "w") as out:
-        stream = out.add_stream("h264" if codec == "h264" else "hevc", rate=fps)
+        stream = cast(av.VideoStream, out.add_stream(codec_of(codec).decoder_name, rate=fps))
         stream.width, stream.height = size
         for i, unit in enumerate(units):
             out.mux(_packet(unit, stream, i, fps, codec))
@@ -49,8 +50,7 @@ def _packet(unit: bytes, stream: av.VideoStream, i: int, fps: int, codec: str) -
     packet.stream = stream
     packet.time_base = Fraction(1, fps)
     packet.pts = packet.dts = i
-    kinds = {k for k, _ in nal_units(unit, "h264" if codec == "h264" else "hevc")}
-    packet.is_keyframe = bool(kinds & KEYFRAME_TYPES["h264" if codec == "h264" else "hevc"])
+    packet.is_keyframe = codec_of(codec).is_keyframe(unit)
     return packet
 
 
@@ -77,8 +77,8 @@ class VideoSender:
     def _run(self) -> None:
         try:
             with av.open(self.url, "w", format=self.fmt) as out:
-                stream = out.add_stream("h264" if self.codec == "h264" else "hevc",
-                                        rate=self.fps)
+                stream = cast(av.VideoStream,
+                              out.add_stream(codec_of(self.codec).decoder_name, rate=self.fps))
                 stream.width, stream.height = self.size
                 t0 = time.monotonic()
                 for k in range(self.repeat * len(self.units)):

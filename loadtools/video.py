@@ -13,11 +13,7 @@ import av
 import numpy as np
 
 from arcf.client.media.convert import picture_bgr
-from arcf.client.media.video import CODECS
-
-#: codec name on the wire (frame ``encoding``, CompressedVideo ``format``) -> FFmpeg's encoder
-#: (the decoder is the service's, ``arcf.client.media.video.CODECS``)
-ENCODERS = {"h264": "libx264", "h265": "libx265"}
+from arcf.client.media.encodings import codec_of
 
 
 def encode_video(images: Iterable[np.ndarray], codec: str = "h264", fps: int = 30,
@@ -27,7 +23,7 @@ def encode_video(images: Iterable[np.ndarray], codec: str = "h264", fps: int = 3
     stream, whose keyframes come at a fixed interval). ``repeat_headers``: the parameter
     sets in front of every keyframe, not only the first (what a camera streaming to
     receivers that join at any time sends)."""
-    encoder_name = ENCODERS[codec]
+    encoder_name = codec_of(codec).encoder_name
     enc: av.VideoCodecContext | None = None
     units: list[bytes] = []
     for image in images:
@@ -57,5 +53,5 @@ def encode_video(images: Iterable[np.ndarray], codec: str = "h264", fps: int = 3
 def decode_video(units: Iterable[bytes], codec: str = "h264") -> list[np.ndarray]:
     """Every picture of a stream of access units, by one plain FFmpeg decoder, as BGR
     converted as a worker converts it (``picture_bgr``)."""
-    dec = cast(av.VideoCodecContext, av.CodecContext.create(CODECS[codec], "r"))
+    dec = cast(av.VideoCodecContext, av.CodecContext.create(codec_of(codec).decoder_name, "r"))
     return [picture_bgr(f) for u in units for f in dec.decode(av.Packet(u))]

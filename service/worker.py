@@ -25,8 +25,9 @@ import numpy as np
 
 from arcf import ARCFError, create_tracker, warm_up
 from arcf.client.foxglove import parse_compressed_video
-from arcf.client.media.images import REGION_DECODING, decode_image
-from arcf.client.media.video import CODECS, Decoded, Outcome, StreamDecoder
+from arcf.client.media.encodings import Codec, codec_of, decode_image, video_codec
+from arcf.client.media.images import REGION_DECODING
+from arcf.client.media.video import Decoded, Outcome, StreamDecoder
 from arcf.client.transport import LOG_FORMAT
 from arcf.region import Region, RegionFrame, cover, whole_frame
 from arcf.schemas import (
@@ -699,7 +700,7 @@ class Worker:
         if frame.encoding.is_video:
             stream.inbox.limit = stream.inbox.video_queue
             return self._decode_unit(stream, frame.seq, frame.capture_ts_ns, received_ns,
-                                     CODECS[frame.encoding.value], frame.payload)
+                                     codec_of(frame.encoding), frame.payload)
         stream.decoder, stream.inbox.limit = None, stream.inbox.image_queue
         stream.unit_times.clear()
         t0, c0 = time.perf_counter(), time.thread_time()
@@ -740,7 +741,7 @@ class Worker:
             self._error(stream, ErrorCode.DECODE_ERROR, str(exc), seq)
             self.clock.since("parse", c0)
             return None
-        codec = CODECS.get(unit.format)
+        codec = video_codec(unit.format)
         if codec is None:
             self._error(stream, ErrorCode.DECODE_ERROR, f"CompressedVideo format "
                         f"{unit.format[:40]!r} is not h264 or h265", seq)
@@ -781,13 +782,13 @@ class Worker:
         return True
 
     def _decode_unit(self, stream: _Stream, seq: int, capture_ts_ns: int, received_ns: int,
-                     codec: str, data: bytes) -> _Picture | None:
+                     codec: Codec, data: bytes) -> _Picture | None:
         """One access unit through the stream's decoder (made at its first unit, remade if
         the codec changes). A unit that cannot be decoded (no keyframe yet, a gap, damage)
         is an error for the sessions, reported on the stream and counted, and the decoder
         waits for the next keyframe."""
-        if stream.decoder is None or stream.decoder.codec != codec:
-            stream.decoder = StreamDecoder(codec, self.settings.max_pixels)
+        if stream.decoder is None or stream.decoder.codec != codec.ffmpeg:
+            stream.decoder = codec.stream_decoder(self.settings.max_pixels)
             stream.unit_times.clear()
         times = stream.unit_times
         times[seq] = (capture_ts_ns, received_ns)

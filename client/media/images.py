@@ -1,9 +1,7 @@
-"""Frame decoding: the service's, and the one its load tools and tests compare against.
-
-``decode_image`` turns a wire ``Frame`` into pixels or a refusal (sizes checked from the
-header first); ``decode_compressed`` is its decoder for JPEG / PNG bytes alone, which the
-load tools' library reference and the benchmarks use too, so that "the library alone" decodes
-exactly as a worker does.
+"""JPEG and PNG pictures decoded: whole (``decode_compressed``, as a worker decodes them, and
+so the load tools' library reference and the benchmarks too, so that "the library alone"
+decodes exactly as a worker does), or a JPEG by region (``decode_jpeg_region``). The checks
+that come first (size limits, error codes) are the encoding table's (:mod:`.encodings`).
 
 Given the region its trackers read (``arcf.region``), a worker decodes a JPEG only there
 (``decode_jpeg_region``): libjpeg-turbo's partial decompression through the small C module
@@ -15,16 +13,12 @@ tests/service/test_region_decode.py), so the rectangle asked for is the region w
 from __future__ import annotations
 
 from types import ModuleType
-from typing import Any
 
 import cv2
 import numpy as np
 import simplejpeg
 
 from arcf.region import Region, RegionFrame, area
-from arcf.schemas import ErrorCode
-
-from .headers import image_size
 
 _jpegregion: ModuleType | None
 try:
@@ -108,38 +102,3 @@ def decode_jpeg_region(payload: bytes, region: Region) -> RegionFrame | None:
     exact = (got[0] + e if got[0] > 0 else 0, got[1] + e if got[1] > 0 else 0,
              got[2] - e if got[2] < height else height, got[3] - e if got[3] < width else width)
     return RegionFrame(pixels, exact, lambda: decode_compressed(payload))
-
-
-def decode_image(frame: Any, max_pixels: int | None = None, region: Region | None = None
-                 ) -> tuple[np.ndarray | RegionFrame | None, tuple[ErrorCode, str] | None]:
-    """The frame's pixels as uint8 BGR or gray, or (None, (error code, message)); with a
-    ``region``, a JPEG's may come as a :class:`~arcf.region.RegionFrame` holding it.
-
-    Compressed images are sized from their header first: more than ``max_pixels`` is refused
-    before ``cv2.imdecode`` allocates anything (a decompression bomb costs nothing)."""
-    data = np.frombuffer(frame.payload, dtype=np.uint8)
-    if frame.encoding in ("jpeg", "png"):
-        if max_pixels is not None:
-            size = image_size(frame.payload)
-            if size is None:
-                return None, (ErrorCode.DECODE_ERROR, f"not a readable {frame.encoding} header")
-            if size[0] * size[1] > max_pixels:
-                return None, (ErrorCode.IMAGE_TOO_LARGE,
-                              f"{frame.encoding} declares {size[0]}x{size[1]} = "
-                              f"{size[0] * size[1]} pixels; the limit is {max_pixels}")
-        if region is not None and frame.encoding == "jpeg":
-            partial = decode_jpeg_region(frame.payload, region)
-            if partial is not None:
-                return partial, None
-        try:
-            return decode_compressed(frame.payload), None
-        except ValueError as exc:
-            return None, (ErrorCode.DECODE_ERROR, f"cannot decode {frame.encoding} frame: {exc}")
-    if max_pixels is not None and frame.width * frame.height > max_pixels:
-        return None, (ErrorCode.IMAGE_TOO_LARGE,
-                      f"{frame.width}x{frame.height} exceeds {max_pixels} pixels")
-    channels = 3 if frame.encoding == "bgr8" else 1
-    image = data.reshape(frame.height, frame.width, channels)
-    return (image if channels == 3 else image[..., 0]), None
-
-

@@ -409,7 +409,7 @@ def test_run_load_reports_what_the_ledger_saw(tmp_path) -> None:
 
 def test_a_clip_as_video_is_one_access_unit_per_frame_starting_on_a_keyframe(
         wakeboard7) -> None:
-    from arcf.client.media.video import KEYFRAME_TYPES, nal_units
+    from arcf.client.media.nal import KEYFRAME_TYPES, nal_units
     from arcf.loadtools.video import decode_video
 
     clip = Clip.of(wakeboard7, limit=12)

@@ -19,8 +19,8 @@ from hypothesis import strategies as st
 
 import arcf
 from arcf import ARCFError
+from arcf.client.media.encodings import decode_image
 from arcf.client.media.headers import image_size
-from arcf.client.media.images import decode_image
 from arcf.schemas import (
     MESSAGE_TYPES,
     SCHEMA_VERSION,

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 import simplejpeg
 
+from arcf.client.media.encodings import decode_image
 from arcf.client.media.headers import image_size
-from arcf.client.media.images import decode_image
 
 
 def frame(payload: bytes, encoding: str) -> SimpleNamespace:

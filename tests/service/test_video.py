@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from arcf.client.media.convert import picture_bgr
-from arcf.client.media.video import Outcome, StreamDecoder, nal_units
+from arcf.client.media.nal import nal_units
+from arcf.client.media.video import Outcome, StreamDecoder
 from arcf.data import data_root
 
 SEQ = data_root() / "uav123_10fps" / "data_seq" / "wakeboard7"
@@ -141,7 +142,7 @@ def test_an_access_unit_packed_with_start_codes_is_refused_before_the_decoder() 
     """2 MiB of bare IDR start codes took FFmpeg's decoder to 1.1 GB; 8 MiB of access-unit
     delimiters cost Python 2M loop steps. Both are refused at MAX_NAL_UNITS + 1 start codes,
     the decoder never made, and a real stream decodes afterwards."""
-    from arcf.client.media.video import MAX_NAL_UNITS
+    from arcf.client.media.nal import MAX_NAL_UNITS
 
     with pytest.raises(ValueError, match=f"more than {MAX_NAL_UNITS} NAL units"):
         nal_units(b"\x00\x00\x01\x09" * (2 << 20), "h264")
