@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import json
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, ParamSpec
 
 import zenoh
+
+P = ParamSpec("P")
 
 #: zenoh-python's examples' flags, shared by every command that opens a Zenoh session:
 #: ``-m`` mode, ``-e`` connect endpoint, ``-l`` listen endpoint, ``-c`` Zenoh config file.
@@ -58,13 +60,12 @@ def make_config(
     return conf
 
 
-def open_session(
-    mode: str,
-    listen: Sequence[str] = (),
-    connect: Sequence[str] = (),
-    config_file: Path | None = None,
-    lease_ms: int | None = None,
-    max_message_size: int | None = None,
-) -> zenoh.Session:
-    return zenoh.open(make_config(mode, listen, connect, config_file, lease_ms,
-                                  max_message_size))
+def _opening(configure: Callable[P, zenoh.Config]) -> Callable[P, zenoh.Session]:
+    def open_session(*args: P.args, **kwargs: P.kwargs) -> zenoh.Session:
+        """A Zenoh session opened on :func:`make_config`'s config (same arguments)."""
+        return zenoh.open(configure(*args, **kwargs))
+    return open_session
+
+
+#: A Zenoh session on :func:`make_config`'s config: ``open_session("client", connect=[...])``.
+open_session = _opening(make_config)

@@ -60,6 +60,7 @@ from .commands import (
     StartSession,
     StopSession,
 )
+from .settings import ServiceSettings
 from .supervision import Strikes
 
 __all__ = ["ControlPlane", "SessionRecord", "owner", "place"]
@@ -106,7 +107,7 @@ class SessionRecord:
 
 
 class ControlPlane:
-    def __init__(self, settings: Any, worker_queues: Sequence[Any], version: str,
+    def __init__(self, settings: ServiceSettings, worker_queues: Sequence[Any], version: str,
                  responses: Any = None, timeout: float = 10.0,
                  cluster: Cluster | None = None) -> None:
         self.settings = settings
@@ -123,7 +124,7 @@ class ControlPlane:
         #: preset -> why it cannot run here ("": it can): the Siamese networks' files are
         #: checked once, at start (the workers load them from the same folder)
         self.unavailable = {name: why for name, why in
-                            available_presets(getattr(settings, "models_dir", None)).items()
+                            available_presets(settings.models_dir).items()
                             if why}
         for name, why in self.unavailable.items():
             log.warning("preset %s is not available: %s", name, why)
@@ -143,8 +144,7 @@ class ControlPlane:
         # see a session admitted but not yet in the registry and stop it as withdrawn.
         self.op_lock = threading.RLock()
         #: crashes attributed to streams, and the streams quarantined for them
-        self.strikes = Strikes(getattr(settings, "quarantine_after", 2),
-                               getattr(settings, "quarantine_s", 600.0))
+        self.strikes = Strikes(settings.quarantine_after, settings.quarantine_s)
         #: replacement workers not ready yet: sessions go to a live worker meanwhile
         self.starting: set[int] = set()
 
@@ -576,7 +576,7 @@ class ControlPlane:
     def _authorize(self, rec: SessionRecord, token: str | None, action: str) -> None:
         """Under ``session_control = "owner"``, only the holder of the session's control
         token may stop or re-initialise it (docs/service-design.md#who-may-do-what)."""
-        if getattr(self.settings, "session_control", "owner") == "open":
+        if self.settings.session_control == "open":
             return
         if rec.token_sha256 is None:  # registered by an instance that issued no token
             return

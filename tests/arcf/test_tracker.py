@@ -1021,6 +1021,6 @@ def test_the_readme_lists_every_override_with_what_it_accepts() -> None:
 
     from arcf.presets import TUNABLE
 
-    readme = (Path(__file__).parents[2] / "docs" / "library.md").read_text()
+    readme = (Path(__file__).parents[2] / "docs" / "presets.md").read_text()
     rows = dict(re.findall(r"^\| `([a-z_.]+)` \| (.+) \|$", readme, flags=re.M))
     assert {k: rows.get(k) for k in TUNABLE} == {k: t.describe() for k, t in TUNABLE.items()}

@@ -1,0 +1,277 @@
+"""The docs' code examples are files (``docs/snippets/*.py``) that the pages include with
+pymdownx.snippets: every include names a file, every snippet is included by a page and checked
+here, and each runs in its own interpreter, within a deadline, exits 0 and prints what its page
+says it prints. Those that talk to a service get one started here on loopback, named by
+``ARCF_ENDPOINT``, as a reader's would be by its address."""
+
+from __future__ import annotations
+
+import ast
+import os
+import re
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import pytest
+
+from arcf.data import data_root
+
+ROOT = Path(__file__).resolve().parent.parent
+DOCS = ROOT / "docs"
+SNIPPETS = DOCS / "snippets"
+#: ``--8<-- "docs/snippets/x.py"``, pymdownx.snippets' include (paths from the repository root)
+INCLUDE = re.compile(r'^\s*--8<--\s+"([^"]+)"\s*$', re.M)
+#: what one snippet may take, on a loaded 2-core machine (most take a few seconds)
+DEADLINE_S = 300.0
+
+needs_data = pytest.mark.skipif(not (data_root() / "uav123_10fps").is_dir(),
+                                reason="needs ../shared/data")
+
+#: snippet file name -> the test that runs it (filled by ``@checks``)
+CHECKED: dict[str, str] = {}
+
+
+def checks(*names: str) -> Callable[[Callable[..., None]], Callable[..., None]]:
+    """Record which snippets a test runs, so that a snippet nobody runs fails the suite."""
+    def mark(test: Callable[..., None]) -> Callable[..., None]:
+        for name in names:
+            CHECKED[name] = test.__name__
+        return test
+    return mark
+
+
+def pages() -> list[Path]:
+    return sorted(p for p in DOCS.rglob("*.md") if SNIPPETS not in p.parents)
+
+
+def includes() -> dict[Path, list[str]]:
+    """Every page's snippet includes, as written."""
+    return {page: INCLUDE.findall(page.read_text(encoding="utf-8")) for page in pages()}
+
+
+def run(name: str, *args: str, env: dict[str, str] | None = None,
+        timeout: float = DEADLINE_S) -> str:
+    """Run ``docs/snippets/<name>`` as a reader would (``python docs/snippets/<name>`` from
+    the repository root); its standard output, once it exited 0 within ``timeout``."""
+    proc = subprocess.run([sys.executable, str(SNIPPETS / name), *args], cwd=ROOT,
+                          capture_output=True, text=True, timeout=timeout,
+                          env={**os.environ, **(env or {})})
+    assert proc.returncode == 0, f"{name} exited {proc.returncode}:\n{proc.stderr[-3000:]}"
+    return proc.stdout
+
+
+def _box(text: str) -> tuple[float, float, float, float]:
+    x, y, w, h = ast.literal_eval(text)
+    return float(x), float(y), float(w), float(h)
+
+
+def _iou(a: tuple[float, ...], b: tuple[float, ...]) -> float:
+    ix = max(0.0, min(a[0] + a[2], b[0] + b[2]) - max(a[0], b[0]))
+    iy = max(0.0, min(a[1] + a[3], b[1] + b[3]) - max(a[1], b[1]))
+    inter = ix * iy
+    return inter / (a[2] * a[3] + b[2] * b[3] - inter)
+
+
+# ------------------------------------------------------------------ the files and the pages
+
+def test_every_include_names_a_snippet_file() -> None:
+    found = includes()
+    assert any(found.values()), "no page includes a snippet"
+    for page, paths in found.items():
+        for path in paths:
+            target = ROOT / path
+            assert target.is_file(), f"{page.relative_to(ROOT)} includes {path}: no such file"
+            assert target.parent == SNIPPETS, f"{page.relative_to(ROOT)}: {path} is not a snippet"
+
+
+def test_every_snippet_is_included_by_a_page_and_run_here() -> None:
+    included = {Path(path).name for paths in includes().values() for path in paths}
+    files = {p.name for p in SNIPPETS.glob("*.py")}
+    assert files, "docs/snippets/ is empty"
+    assert not files - included, f"snippets no page includes: {sorted(files - included)}"
+    assert not files - set(CHECKED), f"snippets no test runs: {sorted(files - set(CHECKED))}"
+    assert not set(CHECKED) - files, f"tests of missing snippets: {sorted(set(CHECKED) - files)}"
+
+
+def test_pages_show_no_python_example_that_is_not_a_snippet() -> None:
+    """A fenced Python block on a page is an include, so that every example shown runs."""
+    fence = re.compile(r"^( *)```python\n(.*?)^\1```", re.M | re.S)
+    for page in pages():
+        for _, body in fence.findall(page.read_text(encoding="utf-8")):
+            assert re.fullmatch(r'--8<--\s+"[^"]+"', body.strip()), (
+                f"{page.relative_to(ROOT)}: a Python example not in docs/snippets/:\n{body}")
+
+
+# ------------------------------------------------------------------ the library
+
+@pytest.mark.integration
+@needs_data
+@checks("first_track.py")
+def test_first_track_follows_the_boat() -> None:
+    lines = run("first_track.py").splitlines()
+    assert len(lines) == 29, lines  # frames 1..29 after the init frame
+    rows = [re.fullmatch(r"(\d+) (\(.*\)) (\w+) ([\d.]+) ([\d.]+)", line) for line in lines]
+    assert all(rows), lines
+    assert [int(r[1]) for r in rows if r] == list(range(1, 30))
+    last = rows[-1]
+    assert last is not None and last[3] == "tracking" and float(last[4]) > 0.5
+    gt = (data_root() / "published_results/UAV123_10fps/groundtruth/boat1.txt").read_text()
+    truth = tuple(float(v) for v in gt.splitlines()[29].split(","))
+    assert _iou(_box(last[2]), truth) > 0.5, (last[2], truth)
+
+
+@pytest.mark.integration
+@needs_data
+@checks("run_sequence.py")
+def test_a_sequence_is_run_and_scored() -> None:
+    out = run("run_sequence.py")
+    m = re.search(r"MountainBike6: (\d+) frames at (\d+) FPS, P@20 ([\d.]+), AUC ([\d.]+)", out)
+    assert m, out
+    assert int(m[1]) == 81 and int(m[2]) > 0
+    assert float(m[3]) > 0.8 and float(m[4]) > 0.5, out  # it follows the bike
+
+
+@pytest.mark.integration
+@needs_data
+@checks("score_published.py")
+def test_the_published_boxes_give_the_papers_figures() -> None:
+    out = run("score_published.py")
+    assert "precision@20 0.666  AUC 0.473  (123 sequences, toolkit convention)" in out, out
+    m = re.search(r"(\d+) sequences with frames here: (.*)", out)
+    assert m and int(m[1]) == len(m[2].split(", ")) and "boat1" in m[2], out
+
+
+@pytest.mark.integration
+@needs_data
+@checks("release_compatible.py")
+def test_release_mode_gives_the_release_boxes() -> None:
+    out = run("release_compatible.py")
+    m = re.search(r"(\d+) frames, mean centre distance to the release: ([\d.]+) px", out)
+    assert m and int(m[1]) == 60 and float(m[2]) <= 0.5, out
+
+
+@pytest.mark.integration
+@needs_data
+@checks("add_preset.py")
+def test_a_candidate_preset_runs_beside_its_family() -> None:
+    out = run("add_preset.py")
+    assert "family: arcf" in out, out
+    scores = dict(re.findall(r"^(arcf-h(?:-3s)?): P@20 ([\d.]+), AUC [\d.]+, \d+ FPS$", out,
+                             re.M))
+    assert set(scores) == {"arcf-h", "arcf-h-3s"}, out
+    assert all(float(p) > 0.9 for p in scores.values()), out
+
+
+@needs_data
+@checks("encodings.py")
+def test_every_encoding_of_the_wire_is_walked() -> None:
+    from arcf.schemas import Encoding
+
+    out = run("encodings.py")
+    lines = dict(line.split(": ", 1) for line in out.splitlines())
+    assert set(lines) == {e.value for e in Encoding}, out
+    for name, line in lines.items():
+        if Encoding(name).is_video:
+            assert line.startswith("video, FFmpeg ") and "keyframe NAL types [" in line, line
+        else:
+            assert "size (1280, 720)" in line, line
+            assert line.endswith("(720, 1280)" if name == "gray8" else "(720, 1280, 3)"), line
+
+
+# ------------------------------------------------------------------ through a service
+
+@pytest.fixture(scope="module")
+def service() -> Iterator[dict[str, str]]:
+    """One ``arcf-service`` on a free loopback port for the module's snippets: the
+    environment that names it to them."""
+    pytest.importorskip("zenoh")
+    from arcf.loadtools.procs import ServiceProcess
+
+    with ServiceProcess(workers=1) as svc:
+        yield {"ARCF_ENDPOINT": svc.endpoint}
+
+
+class Replay:
+    """``replay_stream.py`` publishing a stream in the background, as a camera would."""
+
+    def __init__(self, env: dict[str, str], stream: str, frames: int) -> None:
+        self.proc = subprocess.Popen(
+            [sys.executable, str(SNIPPETS / "replay_stream.py"), stream, str(frames)],
+            cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+            env={**os.environ, **env})
+
+    def finish(self, timeout: float = DEADLINE_S) -> str:
+        out, err = self.proc.communicate(timeout=timeout)
+        assert self.proc.returncode == 0, err[-3000:]
+        return out
+
+    def stop(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.communicate()
+
+
+@pytest.mark.integration
+@needs_data
+@checks("first_session.py")
+def test_a_first_session_answers_every_frame(service: dict[str, str]) -> None:
+    lines = run("first_session.py", env=service).splitlines()
+    assert len(lines) == 20, lines
+    fields = [line.split(" ", 2) for line in lines]
+    assert [int(f[0]) for f in fields] == list(range(20)), lines
+    assert fields[0][1] == "initialized", lines
+    assert all(f[1] == "tracking" for f in fields[1:]), lines
+
+
+@pytest.mark.integration
+@needs_data
+@checks("fleet.py")
+def test_a_fleet_accounts_for_every_frame(service: dict[str, str]) -> None:
+    out = run("fleet.py", env=service)
+    m = re.fullmatch(r"([\d.]+) (\{.*\}) (\{.*\})\n", out)
+    assert m, out
+    accounting = ast.literal_eval(m[3])
+    assert float(m[1]) > 0 and "p99" in ast.literal_eval(m[2]), out
+    assert accounting["sessions"] == 3 and accounting["results"] > 0, accounting
+    assert accounting["unaccounted"] == 0 and accounting["out_of_order"] == 0, accounting
+
+
+@pytest.mark.integration
+@needs_data
+@checks("replay_stream.py", "track_stream.py")
+def test_a_station_tracks_a_stream_another_publishes(service: dict[str, str]) -> None:
+    replay = Replay(service, "gimbal", 80)  # 8 s at 10 fps
+    try:
+        time.sleep(1.0)  # the camera is on before the station starts
+        lines = run("track_stream.py", "gimbal", env=service).splitlines()
+        assert "80 frames published on 'gimbal'" in replay.finish()
+    finally:
+        replay.stop()
+    assert len(lines) == 30, lines
+    statuses = [line.split(" ")[1] for line in lines]
+    assert statuses[0] == "initialized" and set(statuses[1:]) == {"tracking"}, lines
+    seqs = [int(line.split(" ")[0]) for line in lines]
+    assert seqs == sorted(seqs) and seqs[0] > 0, seqs  # from a frame after the start
+
+
+@pytest.mark.integration
+@needs_data
+@checks("adapter.py")
+def test_an_adapter_speaks_in_shares_of_the_picture(service: dict[str, str]) -> None:
+    replay = Replay(service, "cam1", 60)
+    try:
+        time.sleep(1.0)
+        out = run("adapter.py", "cam1", "393,328,155,319", "20", env=service)
+        replay.finish()
+    finally:
+        replay.stop()
+    header, *rows = out.splitlines()
+    assert header == "frame,status,state,cx,cy,w,h" and len(rows) == 20, out
+    with_box = [row.split(",") for row in rows if row.split(",")[2]]
+    assert len(with_box) >= 15, out  # the picture's size is known from the first frame on
+    for _, _, state, *shares in with_box:
+        assert state in ("tracking", "coasting", "lost")
+        assert all(0.0 < float(v) < 1.0 for v in shares), shares
