@@ -21,10 +21,9 @@ from typing import Any
 
 import cv2
 
-from arcf import ARCFError, create_tracker, warm_up
+from arcf import create_tracker, warm_up
 from arcf.client.media.images import REGION_DECODING
 from arcf.client.transport import LOG_FORMAT
-from arcf.region import whole_frame
 from arcf.schemas import (
     ErrorCode,
     KeySpace,
@@ -43,12 +42,13 @@ from .commands import (
     StopSession,
 )
 from .intake import Inbox, Numbering
-from .pipeline import FramePipeline, count_extent
+from .pipeline import FramePipeline
 from .sessions import SessionTable
 from .settings import ServiceSettings
 from .stages import StageClock
-from .streams import Picture, Session, Stream, read_region
+from .streams import Picture, Session, Stream
 from .supervision import InFlight
+from .tracking import Tracking
 from .turns import TurnBudget
 
 log = logging.getLogger(__name__)
@@ -104,6 +104,7 @@ class Worker:
         self.clock = StageClock(metrics.STAGE_CPU)
         self.pipeline = FramePipeline(settings, metrics, self.clock)
         self.budget = TurnBudget(settings.worker_budget)
+        self.tracking = Tracking(metrics, self.clock, settings.session_budget_ms / 1e3)
         self.memory = metrics.MEMORY.labels(process=f"worker-{index}")
         self.wake = threading.Event()
         self.pending: deque[Command] = deque()
@@ -374,99 +375,10 @@ class Worker:
             self._track(stream, picture)
 
     def _track(self, stream: Stream, picture: Picture) -> None:
-        """Every session of the stream on one picture (or told why there is none)."""
-        m, clock = self.metrics, self.clock
-        c0, converts = time.thread_time(), picture.image is None and picture.video is not None
-        image = picture.pixels(read_region(stream) if converts else None)
-        stream.window_decode_s += time.thread_time() - c0
-        if converts:
-            c0 = clock.since("convert", c0)
-            if image is not None:
-                count_extent(m, image)
-            clock.since("metrics", c0)
-        decode_s, received_ns = picture.decode_s, picture.received_ns
-        code, text = picture.code, picture.text
-        if image is not None:
-            m.FRAMES_PROCESSED.inc()
-        for s in list(stream.sessions.values()):
-            dropped = 0 if s.last_seq is None else max(picture.seq - s.last_seq - 1, 0)
-            status, message, r = "tracking", None, None
-            error_code: ErrorCode | None = None
-            unusable_box = False
-            t1, c1 = time.perf_counter(), time.thread_time()
-            if image is None:
-                status, message = "error", text
-                error_code = code
-            elif s.pending_box is not None and (
-                s.pending_seq is None or picture.seq >= s.pending_seq
-            ):
-                try:
-                    r = s.tracker.init(whole_frame(image), s.pending_box)
-                    status = s.pending_status
-                    if s.pending_seq is not None and picture.seq > s.pending_seq:
-                        message = (f"box of frame {s.pending_seq} applied to frame {picture.seq}"
-                                   ", the first this session saw at or after it")
-                except ARCFError as exc:
-                    status, message = "error", str(exc)
-                    error_code, unusable_box = ErrorCode.INVALID_BOX, True
-                s.pending_box = None
-            elif s.tracker.initialized:
-                try:
-                    r = s.tracker.update(image)
-                except ARCFError as exc:
-                    status, message = "error", str(exc)
-                    error_code = ErrorCode.INVALID_FRAME
-                    m.ERRORS.labels(kind=error_code.value).inc()
-            else:
-                continue  # waiting for the frame its box was drawn on
-            track_s = time.perf_counter() - t1
-            cpu_s = time.thread_time() - c1
-            clock.add("track", cpu_s)
-            c1 += cpu_s
-            m.TRACK.observe(track_s)
-            c1 = clock.since("metrics", c1)
-            s.window_cpu_s += cpu_s
-            s.last_seq = picture.seq
-            s.frames += 1
-            nan = float("nan")
-            published = time.time_ns()
-            result = Result(
-                session_id=s.session_id, stream_id=s.stream_id, frame_seq=picture.seq,
-                capture_ts_ns=picture.capture_ts_ns,
-                box=list(r.box) if r else [nan, nan, nan, nan],
-                peak=r.peak if r else nan, psr=r.psr if r else nan,
-                aberrance=r.aberrance if r else nan,
-                aberrance_release=r.aberrance_release if r else nan,
-                scale=r.scale if r else nan,
-                confidence=r.confidence if r else None,
-                track_state=r.state.value if r else None,
-                reacquired=True if r and r.reacquired else None,
-                status=status, dropped=dropped, message=message,
-                code=error_code, received_ts_ns=received_ns, decode_s=decode_s,
-                track_s=track_s, published_ts_ns=published,
-            )
-            s.publisher.put(encode(result))
-            c1 = clock.since("publish", c1)
-            m.RESULTS.inc()
-            if picture.capture_ts_ns > 0:
-                m.END_TO_END.observe(max(published - picture.capture_ts_ns, 0) / 1e9)
-            clock.since("metrics", c1)
-            s.last_activity, s.last_result_ns = time.monotonic(), published
-            s.fresh_at, s.stale_noticed = s.last_activity, None  # no longer stale
-            if unusable_box:  # no tracker to run: the session ends, saying so
-                self._end(s, f"session ended: its box does not fit frame {picture.seq} "
-                          f"({message})", ErrorCode.INVALID_BOX)
-                continue
-            if r is None:  # nothing tracked: no cost to weigh (junk cannot dilute the mean)
-                continue
-            s.tracked += 1
-            s.cost_s = cpu_s if s.tracked == 1 else 0.8 * s.cost_s + 0.2 * cpu_s
-            budget = self.settings.session_budget_ms / 1e3
-            if (s.tracked >= 5 and s.cost_s > budget) or cpu_s > 4 * budget:
-                self._end(s, f"session ended: its frames take {1e3 * max(s.cost_s, cpu_s):.0f} "
-                          f"ms of CPU, above the {1e3 * budget:g} ms budget of a session "
-                          "(session_budget_ms); other streams share its worker",
-                          ErrorCode.LIMIT_EXCEEDED)
+        """Every session of the stream on one picture; the sessions that cannot go on end,
+        saying why (:mod:`arcf.service.tracking`)."""
+        for end in self.tracking.run(stream, picture):
+            self._end(end.session, end.why, end.code)
 
     # ------------------------------------------------------------------ loop
     def run(self) -> None:

@@ -15,7 +15,7 @@ from prometheus_client import REGISTRY
 
 from arcf.client.media.encodings import encode_image
 from arcf.region import RegionFrame
-from arcf.schemas import ErrorCode, ErrorMessage, Frame, decode, encode
+from arcf.schemas import ErrorCode, ErrorMessage, Frame, Result, decode, encode
 from arcf.service import metrics
 from arcf.service.intake import Inbox, Numbering
 from arcf.service.pipeline import FramePipeline
@@ -262,3 +262,72 @@ def test_decoders_reset_say_why(pipeline: FramePipeline, wakeboard7) -> None:  #
     assert stream.decoder is not None
     assert pipeline.reset_decoders([stream, _real_stream("idle")], "memory", "memory") == 1
     assert stream.decoder is None and stream.errors.sent[-1].message == "memory"
+
+
+# ---------------------------------------------------------------------- tracking
+class _Results:
+    """A session's result key: the results put on it."""
+
+    def __init__(self) -> None:
+        self.sent: list[Result] = []
+
+    def put(self, data: bytes) -> None:
+        self.sent.append(decode(data, expected=Result))
+
+
+def _tracked_session(sid: str, box: Any, preset: str = "arcf-h") -> Session:
+    from arcf import create_tracker
+
+    return Session(sid, "cam", preset, create_tracker(preset), _Results(), pending_box=box)
+
+
+def test_sessions_start_on_their_frame_track_and_end_when_their_box_is_absurd(
+        wakeboard7) -> None:  # type: ignore[no-untyped-def]
+    from arcf.service.streams import Picture
+    from arcf.service.tracking import Tracking
+
+    stream = _stream("cam")
+    good = _tracked_session("good", tuple(wakeboard7.groundtruth[0]))
+    late = _tracked_session("late", tuple(wakeboard7.groundtruth[0]))
+    late.pending_seq = 2  # drawn on frame 2: waits for it
+    absurd = _tracked_session("absurd", (5000.0, 5000.0, 10.0, 10.0))
+    for s in (good, late, absurd):
+        stream.sessions[s.session_id] = s
+    tracking = Tracking(metrics, StageClock(metrics.STAGE_CPU), session_budget_s=10.0)
+    ends = []
+    for seq in range(4):
+        image = cv2.imread(str(wakeboard7.frames[seq]))
+        ends += tracking.run(stream, Picture(seq, 100 + seq, 200 + seq, 0.001, image))
+    assert [(e.session.session_id, e.code) for e in ends] == [("absurd", ErrorCode.INVALID_BOX)]
+    assert "its box does not fit frame 0" in ends[0].why
+    assert [(r.frame_seq, r.status) for r in good.publisher.sent] == [
+        (0, "initialized"), (1, "tracking"), (2, "tracking"), (3, "tracking")]
+    assert [(r.frame_seq, r.status) for r in late.publisher.sent] == [
+        (2, "initialized"), (3, "tracking")]
+    assert [(r.frame_seq, r.status, r.code) for r in absurd.publisher.sent] == [
+        (0, "error", ErrorCode.INVALID_BOX)]
+    last = good.publisher.sent[-1]
+    assert last.capture_ts_ns == 103 and last.received_ts_ns == 203 and last.dropped == 0
+    assert last.track_state == "tracking" and 0.0 < (last.confidence or 0.0) <= 1.0
+    # a picture that could not be decoded: every session told, with its code
+    stream.sessions.pop("absurd")
+    ends = tracking.run(stream, Picture(5, 105, 205, 0.0, None, ErrorCode.DECODE_ERROR, "bad"))
+    assert ends == []
+    assert [(r.frame_seq, r.status, r.code, r.message, r.dropped)
+            for r in (good.publisher.sent[-1], late.publisher.sent[-1])] == [
+        (5, "error", ErrorCode.DECODE_ERROR, "bad", 1)] * 2
+
+
+def test_a_session_over_its_budget_is_returned_to_end(wakeboard7) -> None:  # type: ignore[no-untyped-def]
+    from arcf.service.streams import Picture
+    from arcf.service.tracking import Tracking
+
+    stream = _stream("cam")
+    s = _tracked_session("costly", tuple(wakeboard7.groundtruth[0]))
+    stream.sessions[s.session_id] = s
+    tracking = Tracking(metrics, StageClock(metrics.STAGE_CPU), session_budget_s=1e-6)
+    image = cv2.imread(str(wakeboard7.frames[0]))
+    ends = tracking.run(stream, Picture(0, 1, 1, 0.0, image))
+    assert [(e.session.session_id, e.code) for e in ends] == [
+        ("costly", ErrorCode.LIMIT_EXCEEDED)]
+    assert "above the 0.001 ms budget of a session (session_budget_ms)" in ends[0].why
