@@ -11,7 +11,7 @@ import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from typing import Any
 
-from arcf.client import TrackingClient
+from arcf.client import ServiceError, TrackingClient
 from arcf.client.transport import LOG_FORMAT
 
 #: the service's endpoint on its embedded default
@@ -160,23 +160,10 @@ def parse_overrides(ap: argparse.ArgumentParser, items: Sequence[str]) -> dict[s
 
 
 def check_preset(client: TrackingClient, preset: str, overrides: Mapping[str, Any]) -> None:
-    """Refuse, before any station clicks, a preset or an override the service would refuse
-    (its ``presets`` reply says what each override accepts). Raises ``ValueError``."""
-    info = client.presets()
-    if preset not in {p.name for p in info.presets}:
-        raise ValueError(f"unknown preset {preset!r}; the service runs "
-                         f"{sorted(p.name for p in info.presets)}")
-    accepts = {p.name: p for p in info.parameters}
-    kinds = {"bool": (bool,), "int": (int,), "float": (int, float), "str": (str,)}
-    for name, value in overrides.items():
-        p = accepts.get(name)
-        if p is None:
-            raise ValueError(f"unknown override {name!r}")
-        if not isinstance(value, kinds[p.kind]) or (p.kind != "bool" and isinstance(value, bool)):
-            raise ValueError(f"override {name}={value!r}: a {p.kind} is needed")
-        if p.choices is not None and value not in p.choices:
-            raise ValueError(f"override {name}={value!r}: one of {p.choices}")
-        if p.kind in ("int", "float") and isinstance(value, int | float) and not (
-                (p.minimum is None or value >= p.minimum)
-                and (p.maximum is None or value <= p.maximum)):
-            raise ValueError(f"override {name}={value!r}: within [{p.minimum}, {p.maximum}]")
+    """Refuse, before any station clicks, a preset or an override the service would refuse:
+    the service checks them as it checks a start (``TrackingClient.check``). Raises
+    ``ValueError`` with the service's reason."""
+    try:
+        client.check(preset, dict(overrides))
+    except ServiceError as exc:
+        raise ValueError(exc.error.message) from exc

@@ -259,6 +259,17 @@ class TrackingClient:
         """The service's presets and what each override accepts."""
         return self._request(PresetsRequest(request_id=uuid.uuid4().hex), timeout)
 
+    def check(self, preset: str, overrides: dict[str, Any] | None = None,
+              timeout: float = 5.0) -> None:
+        """Whether a start with ``preset`` and ``overrides`` would be accepted, checked by
+        the service as a start is (nothing started): raises :class:`ServiceError` with the
+        code and reason a start would get (``unknown_preset``, ``invalid_parameter``)."""
+        reply: Presets = self._request(PresetsRequest(
+            request_id=uuid.uuid4().hex, preset=preset, overrides=overrides or {}), timeout)
+        if reply.refused is not None:
+            raise ServiceError(ErrorMessage(code=reply.refused, message=reply.refusal or "",
+                                            request_id=reply.request_id))
+
     def status(self, stream_id: str | None = None, timeout: float = 5.0) -> Status:
         """What the service runs (only ``stream_id``'s sessions, if given)."""
         return self._request(StatusRequest(request_id=uuid.uuid4().hex, stream_id=stream_id),

@@ -685,11 +685,21 @@ class Status(Reply):
 
 
 class PresetsRequest(Message):
-    """Ask the service which presets it runs and what each override accepts."""
+    """Ask the service which presets it runs and what each override accepts; with a
+    ``preset``, also whether a ``start`` with that preset and ``overrides`` would be accepted
+    (checked as a start is, nothing started: the reply's ``refused``)."""
 
     type: ClassVar[str] = "presets_request"
 
     request_id: Id = Field(description="Client-chosen; echoed in the reply.")
+    preset: Id | None = Field(
+        default=None, description="A preset to check, as a start would name it.")
+    overrides: dict[OverrideKey, OverrideValue] = Field(
+        default_factory=dict,
+        max_length=MAX_OVERRIDES,
+        description="With ``preset``: the overrides to check with it.",
+        json_schema_extra={"propertyNames": {"pattern": OVERRIDE_KEY_PATTERN}},
+    )
 
 
 class ParameterInfo(OpenModel):
@@ -718,6 +728,10 @@ class Presets(Reply):
     request_id: Id
     presets: list[PresetInfo]
     parameters: list[ParameterInfo]
+    refused: ErrorCode | None = Field(
+        default=None, description="The request named a preset: the code a start with it and "
+        "its overrides would be refused with (absent: it would be accepted).")
+    refusal: str | None = Field(default=None, description="Why, with ``refused``.")
 
 
 #: Every top-level message model by wire type, in the order of the design document.

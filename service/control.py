@@ -21,7 +21,7 @@ import secrets
 import threading
 import time
 import uuid
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, cast
@@ -501,6 +501,13 @@ class ControlPlane:
         kinds = {bool: "bool", int: "int", float: "float", str: "str"}
         wire = {k: t for k, t in TUNABLE.items()
                 if t.kind in kinds and k not in HOST_PARAMETERS}
+        refused: ErrorCode | None = None
+        refusal: str | None = None
+        if req.preset is not None:  # a start's preset and overrides, checked as a start's
+            try:
+                self._check_preset(req.preset, req.overrides)
+            except _Refused as exc:
+                refused, refusal = exc.code, str(exc)
         return Presets(
             request_id=req.request_id,
             presets=[PresetInfo(name=p.name, values=({k: reduce(getattr, k.split("."), p)
@@ -510,7 +517,8 @@ class ControlPlane:
             parameters=[ParameterInfo(name=k, kind=kinds[t.kind], minimum=t.low,
                                       maximum=t.high,
                                       choices=list(t.choices) if t.choices else None)
-                        for k, t in wire.items()])
+                        for k, t in wire.items()],
+            refused=refused, refusal=refusal)
 
     def _responder_key(self, request: Request) -> str:
         """What decides which instance answers: the stream, when the request names one or its
@@ -527,16 +535,21 @@ class ControlPlane:
                 stream = rec.stream_id if rec is not None else None
         return stream if stream is not None else "request:" + request.request_id
 
-    def _start(self, req: StartRequest) -> Ack:
-        try:  # the library's one check: the name, no host path, each override's type and range
-            preset, _ = request_params(req.preset, req.overrides)
+    def _check_preset(self, preset: str, overrides: Mapping[str, Any]) -> None:
+        """What a start's preset and overrides must pass: the library's one check (the name,
+        no host path, each override's type and range), and the preset's files here."""
+        try:
+            name, _ = request_params(preset, overrides)
         except InvalidParameterError as exc:
             raise _Refused(ErrorCode.INVALID_PARAMETER, str(exc)) from exc
         except UnknownPresetError as exc:
             raise _Refused(ErrorCode.UNKNOWN_PRESET, str(exc)) from exc
-        if preset in self.unavailable:
-            raise _Refused(ErrorCode.UNKNOWN_PRESET, f"preset {preset!r} is not available on "
-                           f"this service: {self.unavailable[preset]}")
+        if name in self.unavailable:
+            raise _Refused(ErrorCode.UNKNOWN_PRESET, f"preset {name!r} is not available on "
+                           f"this service: {self.unavailable[name]}")
+
+    def _start(self, req: StartRequest) -> Ack:
+        self._check_preset(req.preset, req.overrides)
         quarantined = self.quarantine_reason(req.stream_id)
         if quarantined is not None:
             raise _Refused(ErrorCode.QUARANTINED, quarantined)

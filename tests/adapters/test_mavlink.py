@@ -497,11 +497,13 @@ def test_a_preset_or_override_the_service_refuses_is_caught_at_start_up(
 
     client = rig["client"]
     check_preset(client, "arcf-hc", {"state.reacquire": True})
-    for preset, overrides, fragment in (
-            ("arcf-xx", {}, "unknown preset"),
-            ("arcf-hc", {"gamma": 1000.0}, "within"),
-            ("arcf-hc", {"no_such": 1}, "unknown override"),
-            ("arcf-hc", {"state.reacquire": 1}, "a bool")):
+    check_preset(client, "ARCF_HC", {})  # named as the service names it, as a start would be
+    for preset, overrides, fragment in (  # the service's own reasons
+            ("arcf-xx", {}, "unknown preset 'arcf-xx'"),
+            ("arcf-hc", {"gamma": 1000.0}, r"gamma must be a finite number in \[0, 100\]"),
+            ("arcf-hc", {"no_such": 1}, r"unknown parameter\(s\) \['no_such'\]"),
+            ("arcf-hc", {"state.reacquire": 1}, "state.reacquire must be true or false"),
+            ("arcf-hc", {"fhog_sse_table": "/etc/passwd"}, "names a file on the service")):
         with pytest.raises(ValueError, match=fragment):
             check_preset(client, preset, overrides)
 

@@ -79,3 +79,30 @@ def test_vanished_stations_cost_no_thread_and_no_memory() -> None:
     plane.responses.put(SessionStats(0, {}))  # the once-a-second reports check deadlines
     wait_until(lambda: ack.session_id not in plane.sessions, timeout=30,
                what="the session of the vanished station ended")
+
+
+def test_a_presets_request_checks_a_start_as_a_start_is_checked() -> None:
+    """One validator: a ``presets_request`` naming a preset answers what a ``start`` with it
+    would get, from the same check, and starts nothing."""
+    from arcf.schemas import ErrorCode, PresetsRequest
+
+    plane, worker = _plane()
+
+    def check(preset: str, **overrides: Any) -> tuple[Any, Any]:
+        reply = decode(plane.handle(encode(PresetsRequest(
+            request_id="p", preset=preset, overrides=overrides))) or b"")
+        return reply.refused, reply.refusal
+
+    assert check("ARCF_HC", **{"state.reacquire": True}) == (None, None)
+    for preset, overrides, code, fragment in (
+            ("arcf-x", {}, ErrorCode.UNKNOWN_PRESET, "unknown preset 'arcf-x'"),
+            ("bacf", {"gamma": 1e9}, ErrorCode.INVALID_PARAMETER, "gamma must be"),
+            ("bacf", {"no_such": 1}, ErrorCode.INVALID_PARAMETER, "unknown parameter"),
+            ("bacf", {"fhog_sse_table": "/etc/passwd"}, ErrorCode.INVALID_PARAMETER,
+             "names a file on the service's host")):
+        refused, refusal = check(preset, **overrides)
+        start = _start(plane, "s", overrides=overrides) if preset == "bacf" else None
+        assert refused is code and fragment in refusal, (preset, overrides)
+        if start is not None:  # the start itself gets the same answer
+            assert start.type == "error" and start.code is code and start.message == refusal
+    assert worker.starts == 0 and plane.sessions == {}
