@@ -170,26 +170,23 @@ class Inbox:
 
     def __call__(self, sample: Any) -> None:
         """A sample on the stream's frames key (a ``frame`` message)."""
-        c0 = time.thread_time()
-        try:
-            if str(sample.key_expr) != self.key:
-                self.metrics.ERRORS.labels(kind=ErrorCode.INVALID_KEY.value).inc()
-            else:
-                self._take(sample, "frame", None)
-        finally:
-            if self.clock is not None:
-                self.clock.since("receive", c0)
+        self._receive(sample, self.key, "frame")
 
     def video(self, sample: Any) -> None:
         """A sample on the stream's CompressedVideo key (CDR)."""
+        self._receive(sample, self.video_key, "compressed_video")
+
+    def _receive(self, sample: Any, key: str | None, source: str) -> None:
         c0 = time.thread_time()
         try:
-            if str(sample.key_expr) != self.video_key:
+            if str(sample.key_expr) != key:
                 self.metrics.ERRORS.labels(kind=ErrorCode.INVALID_KEY.value).inc()
-            else:
+            elif source == "frame":
+                self._take(sample, source, None)
+            else:  # numbered on arrival: a unit lost on the way shows as a gap
                 self.limit = self.video_queue
                 seq, self.video_seq = self.video_seq, self.video_seq + 1
-                self._take(sample, "compressed_video", seq)
+                self._take(sample, source, seq)
         finally:
             if self.clock is not None:
                 self.clock.since("receive", c0)

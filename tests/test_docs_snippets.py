@@ -34,12 +34,16 @@ needs_data = pytest.mark.skipif(not (data_root() / "uav123_10fps").is_dir(),
 CHECKED: dict[str, str] = {}
 
 
-def checks(*names: str) -> Callable[[Callable[..., None]], Callable[..., None]]:
-    """Record which snippets a test runs, so that a snippet nobody runs fails the suite."""
+def checks(*names: str, processes: bool = True
+           ) -> Callable[[Callable[..., None]], Callable[..., None]]:
+    """A test of snippets: it needs the shared data, starts processes (``integration``)
+    unless told otherwise, and records which snippets it runs, so that a snippet nobody runs
+    fails the suite."""
     def mark(test: Callable[..., None]) -> Callable[..., None]:
         for name in names:
             CHECKED[name] = test.__name__
-        return test
+        test = needs_data(test)
+        return pytest.mark.integration(test) if processes else test
     return mark
 
 
@@ -107,8 +111,6 @@ def test_pages_show_no_python_example_that_is_not_a_snippet() -> None:
 
 # ------------------------------------------------------------------ the library
 
-@pytest.mark.integration
-@needs_data
 @checks("first_track.py")
 def test_first_track_follows_the_boat() -> None:
     lines = run("first_track.py").splitlines()
@@ -123,8 +125,6 @@ def test_first_track_follows_the_boat() -> None:
     assert _iou(_box(last[2]), truth) > 0.5, (last[2], truth)
 
 
-@pytest.mark.integration
-@needs_data
 @checks("run_sequence.py")
 def test_a_sequence_is_run_and_scored() -> None:
     out = run("run_sequence.py")
@@ -134,8 +134,6 @@ def test_a_sequence_is_run_and_scored() -> None:
     assert float(m[3]) > 0.8 and float(m[4]) > 0.5, out  # it follows the bike
 
 
-@pytest.mark.integration
-@needs_data
 @checks("score_published.py")
 def test_the_published_boxes_give_the_papers_figures() -> None:
     out = run("score_published.py")
@@ -144,8 +142,6 @@ def test_the_published_boxes_give_the_papers_figures() -> None:
     assert m and int(m[1]) == len(m[2].split(", ")) and "boat1" in m[2], out
 
 
-@pytest.mark.integration
-@needs_data
 @checks("release_compatible.py")
 def test_release_mode_gives_the_release_boxes() -> None:
     out = run("release_compatible.py")
@@ -153,8 +149,6 @@ def test_release_mode_gives_the_release_boxes() -> None:
     assert m and int(m[1]) == 60 and float(m[2]) <= 0.5, out
 
 
-@pytest.mark.integration
-@needs_data
 @checks("add_preset.py")
 def test_a_candidate_preset_runs_beside_its_family() -> None:
     out = run("add_preset.py")
@@ -165,8 +159,7 @@ def test_a_candidate_preset_runs_beside_its_family() -> None:
     assert all(float(p) > 0.9 for p in scores.values()), out
 
 
-@needs_data
-@checks("encodings.py")
+@checks("encodings.py", processes=False)
 def test_every_encoding_of_the_wire_is_walked() -> None:
     from arcf.schemas import Encoding
 
@@ -214,8 +207,6 @@ class Replay:
             self.proc.communicate()
 
 
-@pytest.mark.integration
-@needs_data
 @checks("first_session.py")
 def test_a_first_session_answers_every_frame(service: dict[str, str]) -> None:
     lines = run("first_session.py", env=service).splitlines()
@@ -226,8 +217,6 @@ def test_a_first_session_answers_every_frame(service: dict[str, str]) -> None:
     assert all(f[1] == "tracking" for f in fields[1:]), lines
 
 
-@pytest.mark.integration
-@needs_data
 @checks("fleet.py")
 def test_a_fleet_accounts_for_every_frame(service: dict[str, str]) -> None:
     out = run("fleet.py", env=service)
@@ -239,8 +228,6 @@ def test_a_fleet_accounts_for_every_frame(service: dict[str, str]) -> None:
     assert accounting["unaccounted"] == 0 and accounting["out_of_order"] == 0, accounting
 
 
-@pytest.mark.integration
-@needs_data
 @checks("replay_stream.py", "track_stream.py")
 def test_a_station_tracks_a_stream_another_publishes(service: dict[str, str]) -> None:
     replay = Replay(service, "gimbal", 80)  # 8 s at 10 fps
@@ -257,8 +244,6 @@ def test_a_station_tracks_a_stream_another_publishes(service: dict[str, str]) ->
     assert seqs == sorted(seqs) and seqs[0] > 0, seqs  # from a frame after the start
 
 
-@pytest.mark.integration
-@needs_data
 @checks("adapter.py")
 def test_an_adapter_speaks_in_shares_of_the_picture(service: dict[str, str]) -> None:
     replay = Replay(service, "cam1", 60)
