@@ -23,12 +23,10 @@ from typing import Any
 
 from .errors import InvalidParameterError, UnknownPresetError
 from .presets import (
-    ARCF_H,
-    ARCF_HC,
     ARCF_NANO,
-    BACF,
     HOST_PARAMETERS,
     NANOTRACK,
+    PRESETS,
     VITTRACK,
     HybridParams,
     SiameseParams,
@@ -64,7 +62,8 @@ class Family:
 
 #: Every family the library ships.
 FAMILIES: list[Family] = [
-    Family("arcf", TrackerParams, "arcf.tracker:ARCFTracker", (ARCF_H, ARCF_HC, BACF),
+    # ARCF's presets are those make_params overrides by name (arcf.presets.PRESETS)
+    Family("arcf", TrackerParams, "arcf.tracker:ARCFTracker", tuple(PRESETS.values()),
            override=make_params),
     Family("siamese", SiameseParams, "arcf.siamese:SiameseTracker", (NANOTRACK, VITTRACK)),
     Family("hybrid", HybridParams, "arcf.hybrid:HybridTracker", (ARCF_NANO,)),
