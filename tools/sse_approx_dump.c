@@ -5,7 +5,7 @@
  * pixel's orientation from (int)(gx * rsqrt(m2) * 10000) and its magnitude from
  * rcp(rsqrt(m2)). These instructions are ~12-bit approximations whose last bits differ
  * between CPU vendors, and a release-compatible tracker follows the release's boxes only as
- * long as it reproduces them bit for bit (see docs/benchmarks.md, "Arithmetic sensitivity",
+ * long as it reproduces them bit for bit (see docs/results-fidelity.md, "Arithmetic sensitivity",
  * and benchmarks/arithmetic_sensitivity.py). Run this on the machine that produced the
  * reference traces, and arcf can replay that machine's arithmetic (the AMD EPYC's ships with
  * the package: arcf/features/tables/).

@@ -26,7 +26,7 @@ state for one stream (PyAV, which ships FFmpeg in its wheels):
 
 Decoding runs single-threaded per stream (FFmpeg's frame threads would hold several frames
 and make the error capture ambiguous), so its memory is one decoder's: the reference frames
-of one stream (measured in docs/benchmarks.md).
+of one stream (measured in docs/results-adapters.md).
 """
 
 from __future__ import annotations
