@@ -8,7 +8,7 @@ import logging
 import signal
 import threading
 import time
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping
 from typing import Any
 
 from arcf.client import ServiceError, TrackingClient
@@ -127,12 +127,32 @@ def prepare() -> threading.Event:
     return stop
 
 
-def add_override_arguments(ap: argparse.ArgumentParser) -> None:
-    """``--preset`` and ``--set NAME=VALUE`` (repeatable): what the commands' sessions run."""
+def connect(args: argparse.Namespace, logger: logging.Logger, **kwargs: Any
+            ) -> tuple[TrackingClient | None, threading.Event]:
+    """A command's start: logging and its stop event (:func:`prepare`), then a client once
+    the service answers (:func:`wait_for_service`; None: exit with status 2)."""
+    stop = prepare()
+    return wait_for_service(args, logger, stop, **kwargs), stop
+
+
+def add_session_arguments(ap: argparse.ArgumentParser) -> None:
+    """What a command that starts sessions takes: ``--preset`` and ``--set NAME=VALUE``
+    (repeatable; ``args.set`` is then the overrides, a dict), and ``--metrics-port``."""
     ap.add_argument("--preset", default="arcf-hc")
     ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                    type=_override,
                     help="preset override for the sessions, repeatable; nested fields by "
                     "their dotted names, e.g. state.reacquire=false")
+    add_metrics_argument(ap)
+
+
+def _override(item: str) -> tuple[str, Any]:
+    """One ``--set NAME=VALUE``: booleans, numbers, else a string (argparse reports a
+    malformed item as a usage error)."""
+    name, sep, text = item.partition("=")
+    if not sep:
+        raise argparse.ArgumentTypeError(f"--set needs NAME=VALUE, got {item!r}")
+    return name, _value(text)
 
 
 def _value(text: str) -> Any:
@@ -145,18 +165,6 @@ def _value(text: str) -> Any:
         except ValueError:
             pass
     return text
-
-
-def parse_overrides(ap: argparse.ArgumentParser, items: Sequence[str]) -> dict[str, Any]:
-    """``--set`` items as overrides (booleans, numbers, else strings); a malformed item is a
-    usage error."""
-    overrides = {}
-    for item in items:
-        name, sep, value = item.partition("=")
-        if not sep:
-            ap.error(f"--set needs NAME=VALUE, got {item!r}")
-        overrides[name] = _value(value)
-    return overrides
 
 
 def check_preset(client: TrackingClient, preset: str, overrides: Mapping[str, Any]) -> None:

@@ -51,7 +51,7 @@ import numpy as np
 from arcf.client import TrackingClient
 from arcf.client.media.encodings import video_codec
 
-from ._command import add_service_arguments, prepare, wait_for_service
+from ._command import add_service_arguments, connect
 
 log = logging.getLogger(__name__)
 
@@ -539,8 +539,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                               rtp_codec=args.rtp_codec, payload_type=args.payload_type)
     except ValueError as exc:
         ap.error(str(exc))
-    stop = prepare()
-    client = wait_for_service(args, log, stop)
+    client, stop = connect(args, log)
     if client is None:
         return 2
     with client:

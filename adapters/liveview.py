@@ -55,7 +55,7 @@ from arcf.client.media.encodings import codec_of, decode_image
 from arcf.client.media.video import Outcome, StreamDecoder
 from arcf.schemas import Result
 
-from ._command import add_service_arguments, prepare, wait_for_service
+from ._command import add_service_arguments, connect
 from .record import PALETTE
 from .tap import DEFAULT_VIDEO_KEY, StreamTap, TapFrame
 from .viewcontrol import ViewControl
@@ -723,8 +723,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         except (OSError, IndexError) as exc:
             raise SystemExit(f"arcf-view: no control token in {args.control_token_file}: "
                              f"{exc}") from exc
-    stop = prepare()
-    client = wait_for_service(args, log, stop)
+    client, stop = connect(args, log)
     if client is None:
         return 2
     with client:

@@ -71,14 +71,11 @@ from arcf.client.media.encodings import codec_of
 from arcf.schemas import ErrorCode, Frame, Result, ResultStatus, TrackState
 
 from ._command import (
-    add_metrics_argument,
-    add_override_arguments,
     add_service_arguments,
+    add_session_arguments,
     check_preset,
-    parse_overrides,
-    prepare,
+    connect,
     serve_counts,
-    wait_for_service,
 )
 from .gimbal import FollowSettings, GimbalFollower, GimbalTarget
 from .tap import DEFAULT_VIDEO_KEY, StreamTap, TapFrame
@@ -910,7 +907,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     add_service_arguments(ap)
     ap.add_argument("--system-id", type=int, default=1,
                     help="MAVLink system id: the vehicle's (default: %(default)s)")
-    add_override_arguments(ap)
+    add_session_arguments(ap)
     ap.add_argument("--status-hz", type=float, default=10.0,
                     help="CAMERA_TRACKING_IMAGE_STATUS rate until a station sets one")
     ap.add_argument("--link-timeout", type=float, default=5.0,
@@ -947,9 +944,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                     help="fastest rate commanded, deg/s (default %(default)s)")
     ap.add_argument("--follow-hz", type=float, default=30.0,
                     help="most gimbal commands a second (default %(default)s)")
-    add_metrics_argument(ap)
     args = ap.parse_args(argv)
-    overrides = parse_overrides(ap, args.set)
+    overrides: dict[str, Any] = dict(args.set)
     try:
         signing_key = _signing_key(args.signing_key) if args.signing_key else None
     except (OSError, ValueError) as exc:
@@ -983,8 +979,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     cameras = [CameraConfig(c.stream_id, c.component_id, videos.get(c.stream_id),
                             follow if c.stream_id in args.follow else None)
                for c in cameras]
-    stop = prepare()
-    client = wait_for_service(args, log, stop)
+    client, stop = connect(args, log)
     if client is None:
         return 2
     with client:

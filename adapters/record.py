@@ -44,7 +44,7 @@ from arcf.client.media.encodings import codec_of, decode_image, encode_image
 from arcf.schemas import Result
 from arcf.schemas.export import message_schema
 
-from ._command import add_service_arguments, prepare, wait_for_service
+from ._command import add_service_arguments, connect
 from .tap import DEFAULT_VIDEO_KEY, StreamTap, TapFrame
 
 log = logging.getLogger(__name__)
@@ -240,8 +240,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if not re.fullmatch(r"[A-Za-z0-9_.-]{1,64}", args.stream):
         ap.error(f"not a stream id: {args.stream!r}")
-    stop = prepare()
-    client = wait_for_service(args, log, stop)
+    client, stop = connect(args, log)
     if client is None:
         return 2
     with client, \

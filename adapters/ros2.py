@@ -61,14 +61,11 @@ from arcf.schemas import Result, ResultStatus, TrackState
 
 from . import ros2_types as rt
 from ._command import (
-    add_metrics_argument,
-    add_override_arguments,
     add_service_arguments,
+    add_session_arguments,
     check_preset,
-    parse_overrides,
-    prepare,
+    connect,
     serve_counts,
-    wait_for_service,
 )
 
 log = logging.getLogger(__name__)
@@ -546,27 +543,25 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--image", action="append", required=True, metavar="TOPIC=STREAM",
                     help="a sensor_msgs/msg/CompressedImage topic and the stream it feeds")
     add_service_arguments(ap)
-    add_metrics_argument(ap)
     ap.add_argument("--ros-connect", default=None,
                     help="rmw_zenoh's router, when not the same Zenoh network (e.g. "
                     "tcp/127.0.0.1:7448)")
     ap.add_argument("--domain-id", type=int, default=0)
     ap.add_argument("--node-name", default="arcf")
-    add_override_arguments(ap)
+    add_session_arguments(ap)
     ap.add_argument("--bridge-keys", action="store_true",
                     help="also the keys of zenoh-bridge-ros2dds (topic name, raw CDR)")
     args = ap.parse_args(argv)
-    overrides = parse_overrides(ap, args.set)
+    overrides: dict[str, Any] = dict(args.set)
     images = {}
     for item in args.image:
         topic, sep, stream = item.partition("=")
         if not sep or not topic.startswith("/"):
             ap.error(f"--image needs /TOPIC=STREAM, got {item!r}")
         images[topic] = stream
-    stop = prepare()
     from arcf.client.transport import open_session
 
-    client = wait_for_service(args, log, stop)
+    client, stop = connect(args, log)
     if client is None:
         return 2
     with client:

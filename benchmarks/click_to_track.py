@@ -13,7 +13,6 @@ the view renders with the session's box; then stops the session.
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import threading
@@ -24,6 +23,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
+from _common import parser  # beside this script
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
@@ -44,9 +44,8 @@ def post(url: str, body: dict, token: str) -> dict:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = parser(__doc__, preset="bacf")
     ap.add_argument("--boxes", type=int, default=20)
-    ap.add_argument("--preset", default="bacf")
     args = ap.parse_args(argv)
     (seq,) = load_dataset("uav123_10fps", sequences=["wakeboard7"])
     data = [p.read_bytes() for p in seq.frames[:60]]

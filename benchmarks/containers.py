@@ -25,6 +25,8 @@ from pathlib import Path
 from statistics import median
 from typing import Any
 
+from _common import parser  # beside this script
+
 from arcf.client import TrackingClient
 from arcf.data import data_root
 from arcf.eval import load_dataset
@@ -81,11 +83,9 @@ def image_mb(tag: str) -> float:
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = parser(__doc__, preset="arcf-h", fps=5.0)
     ap.add_argument("--trials", type=int, default=3)
     ap.add_argument("--streams", type=int, default=6)
-    ap.add_argument("--fps", type=float, default=5.0)
-    ap.add_argument("--preset", default="arcf-h")
     ap.add_argument("--max-seconds", type=float, default=300.0)
     ap.add_argument("--cold", action="store_true", help="also time a build without cache")
     args = ap.parse_args()

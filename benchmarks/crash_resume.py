@@ -17,7 +17,6 @@ stream).
 
 from __future__ import annotations
 
-import argparse
 import datetime
 import os
 import shlex
@@ -29,6 +28,7 @@ from collections.abc import Callable, Sequence, Sized
 from typing import Any
 
 import numpy as np
+from _common import parser  # beside this script
 
 from arcf.client import TrackingClient
 from arcf.eval import load_dataset
@@ -97,10 +97,8 @@ def wait(cond: Callable[[], bool], timeout: float, what: str) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = parser(__doc__, preset="arcf-h", fps=30.0)
     ap.add_argument("--kills", type=int, default=8)
-    ap.add_argument("--fps", type=float, default=30.0)
-    ap.add_argument("--preset", default="arcf-h")
     args = ap.parse_args(argv)
     (seq,) = load_dataset("uav123_10fps", sequences=["wakeboard7"])
     data = [p.read_bytes() for p in seq.frames]

@@ -11,12 +11,12 @@ swing of the tracker's box past the centre while settling, and the frames not ``
 
 from __future__ import annotations
 
-import argparse
 import datetime
 import sys
 from collections.abc import Sequence
 
 import numpy as np
+from _common import parser  # beside this script
 
 from arcf.eval import load_dataset
 from arcf.eval.environment import describe
@@ -24,9 +24,8 @@ from arcf.loadtools.gimbalsim import run_follow
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = parser(__doc__, preset="arcf-h")
     ap.add_argument("--sequences", default="boat1,truck4_1,truck4_2,wakeboard7,wakeboard10")
-    ap.add_argument("--preset", default="arcf-h")
     ap.add_argument("--rates", default="10,30")
     ap.add_argument("--seconds", type=float, default=10.0)
     args = ap.parse_args(argv)

@@ -12,7 +12,6 @@ after 3 s.
 
 from __future__ import annotations
 
-import argparse
 import datetime
 import math
 import os
@@ -24,6 +23,7 @@ from typing import Any
 
 import cv2
 import numpy as np
+from _common import parser  # beside this script
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 os.environ.setdefault("MAVLINK20", "1")
@@ -147,9 +147,8 @@ def run(service: ServiceProcess, name: str, preset: str, seconds: float) -> dict
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = parser(__doc__, preset="arcf-h")
     ap.add_argument("--sequences", default="truck4_1,wakeboard10")
-    ap.add_argument("--preset", default="arcf-h")
     ap.add_argument("--seconds", type=float, default=10.0)
     args = ap.parse_args(argv)
     print(f"# python benchmarks/follow_service.py {' '.join(argv or sys.argv[1:])}")

@@ -38,7 +38,6 @@ import contextlib
 import http.client
 import json
 import os
-import signal
 import socket
 import struct
 import subprocess
@@ -57,7 +56,7 @@ from pymavlink import mavutil
 from arcf.client import TrackingClient
 from arcf.eval import load_dataset
 from arcf.loadtools.groundstation import GroundStation
-from arcf.loadtools.procs import ServiceProcess, free_port
+from arcf.loadtools.procs import ServiceProcess, free_port, terminate
 from arcf.loadtools.system import machine
 
 mav = mavutil.mavlink
@@ -105,13 +104,7 @@ class Adapter:
         return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
     def stop(self) -> int:
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-        try:
-            return self.proc.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            return self.proc.wait(timeout=10)
+        return terminate(self.proc, timeout=20)
 
 
 def percentiles(values: list[float]) -> tuple[float, float]:
@@ -285,26 +278,25 @@ def view_rows(svc: ServiceProcess, bomb: bytes, seconds: float) -> list[dict[str
             return None
         return time.monotonic() - t0 if ok else None
 
-    def lazy(stop: threading.Event) -> None:
-        socks = []
-        for _ in range(16):
-            s = socket.create_connection(("127.0.0.1", port), 5)
-            s.sendall(b"GET /api/streams/cam1/results HTTP/1.1\r\nHost: v\r\n\r\n")
-            socks.append(s)
-        stop.wait()
-        for s in socks:
-            s.close()
+    def holding(count: int, request: bytes, *, skip_refused: bool = False
+                ) -> Callable[[threading.Event], None]:
+        """An attack of ``count`` connections that each send ``request`` and then hold still
+        until the phase ends. ``skip_refused``: a connection the view refuses or resets is
+        left out (hundreds of them may meet a full backlog); otherwise it ends the attack."""
+        def attack(stop: threading.Event) -> None:
+            socks = []
+            for _ in range(count):
+                with contextlib.suppress(OSError) if skip_refused else contextlib.nullcontext():
+                    s = socket.create_connection(("127.0.0.1", port), 5)
+                    s.sendall(request)
+                    socks.append(s)
+            stop.wait()
+            for s in socks:
+                s.close()
+        return attack
 
-    def half_sent(stop: threading.Event) -> None:
-        socks = []
-        for _ in range(500):
-            with contextlib.suppress(OSError):
-                s = socket.create_connection(("127.0.0.1", port), 5)
-                s.sendall(b"GET /api/str")
-                socks.append(s)
-        stop.wait()
-        for s in socks:
-            s.close()
+    lazy = holding(16, b"GET /api/streams/cam1/results HTTP/1.1\r\nHost: v\r\n\r\n")
+    half_sent = holding(500, b"GET /api/str", skip_refused=True)
 
     def bombed(stop: threading.Event) -> None:
         watcher = socket.create_connection(("127.0.0.1", port), 5)

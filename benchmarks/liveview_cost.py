@@ -11,7 +11,6 @@ what the page does: long-polling ``frame.jpg`` and reading the results' event st
 
 from __future__ import annotations
 
-import argparse
 import os
 import subprocess
 import sys
@@ -20,6 +19,8 @@ import time
 import urllib.request
 from collections.abc import Sequence
 from pathlib import Path
+
+from _common import parser  # beside this script
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
@@ -57,10 +58,9 @@ def viewer(url: str, stop: threading.Event, counts: list[int], index: int) -> No
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = parser(__doc__, fps=30.0)
     ap.add_argument("--encoding", choices=("jpeg", "h264"), default="jpeg")
     ap.add_argument("--seconds", type=float, default=10.0, help="per window")
-    ap.add_argument("--fps", type=float, default=30.0)
     ap.add_argument("--viewers", type=int, nargs="+", default=[0, 1, 4])
     args = ap.parse_args(argv)
 

@@ -27,6 +27,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from _common import parser  # beside this script
+
 from arcf.client import TrackingClient
 from arcf.eval import load_dataset
 from arcf.loadtools.driver import Clip, Fleet, failover_fleet
@@ -181,12 +183,10 @@ def markdown(out: dict[str, Any]) -> str:
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = parser(__doc__, preset="arcf-h", fps=5.0, fps_help="per stream, failover part")
     ap.add_argument("--sequence", default="truck4_1")
     ap.add_argument("--dataset", default="uav123_10fps")
-    ap.add_argument("--preset", default="arcf-h")
     ap.add_argument("--streams", type=int, default=6)
-    ap.add_argument("--fps", type=float, default=5.0, help="per stream, failover part")
     ap.add_argument("--lease-ms", type=int, default=3000)
     ap.add_argument("--trials", type=int, default=3)
     ap.add_argument("--max-seconds", type=float, default=600.0, help="bound on publishing")

@@ -23,11 +23,12 @@ The machine should be otherwise idle: the generator (this process) runs beside t
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 from pathlib import Path
 from typing import Any
+
+from _common import parser  # beside this script
 
 ROOT = Path(__file__).resolve().parent.parent
 MAIN = "main process (control, metrics; the router, if embedded)"
@@ -136,11 +137,9 @@ def service_run(clip: Any, preset: str, frames: int, fps: float,
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--preset", default="arcf-h")
+    ap = parser(__doc__, preset="arcf-h", fps=30.0)
     ap.add_argument("--sequence", default="wakeboard7")
     ap.add_argument("--encodings", default="jpeg,h264")
-    ap.add_argument("--fps", type=float, default=30.0)
     ap.add_argument("--frames", type=int, default=600, help="frames sent (the clip looped)")
     ap.add_argument("--router", choices=("embedded", "external"), default="embedded",
                     help="the service's own router, or a separate arcf-router it connects to")

@@ -18,12 +18,13 @@ Writes ``soak.json`` (with the memory series) and ``soak.png``, prints a Markdow
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import sys
 from pathlib import Path
 from typing import Any
+
+from _common import parser  # beside this script
 
 from arcf.client import TrackingClient
 from arcf.loadtools.procs import ServiceProcess
@@ -32,13 +33,11 @@ from arcf.loadtools.system import machine
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = parser(__doc__, preset="arcf-h", fps=10.0)
     ap.add_argument("--minutes", type=float, default=20.0)
     ap.add_argument("--warmup", type=float, default=120.0, help="seconds")
     ap.add_argument("--streams", type=int, default=3, help="streams at any time")
     ap.add_argument("--lifetime", default="20,60", help="min,max seconds a stream lives")
-    ap.add_argument("--preset", default="arcf-h")
-    ap.add_argument("--fps", type=float, default=10.0)
     ap.add_argument("--dataset", default="uav123_10fps")
     ap.add_argument("--sequences", default="wakeboard7,truck4_1")
     ap.add_argument("--sample", type=float, default=5.0, help="seconds between memory samples")

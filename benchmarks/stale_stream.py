@@ -25,7 +25,6 @@ ACTIVE, the adapter's own timeout.
 
 from __future__ import annotations
 
-import argparse
 import datetime
 import logging
 import os
@@ -37,6 +36,8 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
+
+from _common import parser  # beside this script
 
 os.environ.setdefault("MAVLINK20", "1")
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -195,11 +196,9 @@ def figures(values: list[float]) -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = parser(__doc__, preset="bacf", fps=10.0)
     ap.add_argument("--stale-after-s", type=float, default=0.8)
-    ap.add_argument("--fps", type=float, default=10.0)
     ap.add_argument("--status-hz", type=float, default=10.0)
-    ap.add_argument("--preset", default="bacf")
     ap.add_argument("--pauses", type=int, default=8)
     ap.add_argument("--hangs", type=int, default=4)
     args = ap.parse_args(argv)

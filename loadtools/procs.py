@@ -2,7 +2,8 @@
 load tools, the benchmarks and the integration tests start them.
 
 Each runs the installed program (``python -m arcf.service.app`` of this interpreter, from any
-working directory), waits for its "ready" line and stops it with SIGTERM.
+working directory), waits for its "ready" line and stops it with SIGTERM (:func:`terminate`,
+which the adapters' tests and benchmarks use for the processes they start themselves).
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ import tempfile
 from collections.abc import Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
+from typing import Any
 
 from arcf.service.scrape import scrape
 
@@ -26,6 +28,26 @@ def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
+
+
+def terminate(proc: subprocess.Popen[Any], timeout: float = 30.0) -> int:
+    """Stop a program as its operator would: SIGTERM (unless it has exited), then its exit
+    code (a clean shutdown is 0); SIGKILL (and SIGCONT, for a frozen one) if it has not exited
+    within ``timeout``. Its pipes are closed after. One way for every process the tools and
+    tests start, so that a stuck one is ended the same way everywhere."""
+    try:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+        try:
+            return proc.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.send_signal(signal.SIGCONT)
+            return proc.wait(timeout=10)
+    finally:
+        for pipe in (proc.stdin, proc.stdout, proc.stderr):
+            if pipe is not None:
+                pipe.close()
 
 
 def worker_pids(pid: int) -> set[int]:
@@ -85,16 +107,7 @@ class _Program:
     def stop(self, timeout: float = 30.0) -> int:
         """SIGTERM, then its exit code (a clean shutdown is 0); SIGKILL (and SIGCONT, for a
         frozen one) if it has not exited within ``timeout``."""
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-        try:
-            code = self.proc.wait(timeout=timeout)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            self.proc.send_signal(signal.SIGCONT)
-            code = self.proc.wait(timeout=10)
-        if self.proc.stdout is not None:
-            self.proc.stdout.close()
+        code = terminate(self.proc, timeout)
         if self._log is not None:
             self._log.close()
             self._log = None

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import ast
+import subprocess
+import sys
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
@@ -25,6 +28,26 @@ def compiled_kernels() -> None:
     import arcf
 
     arcf.warm_up()
+
+
+def _loaded_after(code: str, *packages: str) -> list[str]:
+    """The modules among ``packages`` (each, or any module under it) that a fresh interpreter
+    has loaded once it ran ``code``: the way to see what an import drags in, since this
+    process has long loaded everything."""
+    probe = (f"import sys\n{code}\nnames = {packages!r}\n"
+             "print(sorted(m for m in sys.modules if m in names "
+             "or m.startswith(tuple(n + '.' for n in names))))")
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
+                         timeout=120, check=True)
+    loaded: list[str] = ast.literal_eval(out.stdout.strip())
+    return loaded
+
+
+@pytest.fixture
+def loaded_after() -> Callable[..., list[str]]:
+    """``loaded_after(code, *packages)``: which of ``packages`` (or modules under them) a
+    fresh interpreter has loaded after running ``code``; the layer tests' one probe."""
+    return _loaded_after
 
 
 #: frame k -> (the frame, the target's box, None while hidden)

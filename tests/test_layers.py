@@ -11,6 +11,7 @@ from __future__ import annotations
 import ast
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -127,25 +128,16 @@ def test_the_library_is_every_arcf_module_but_the_other_roles() -> None:
     assert forbids(LIBRARY, "arcf.features.fhog") and not forbids(LIBRARY, "arcf.schemas")
 
 
-def test_the_server_loads_without_the_tools() -> None:
-    probe = ("import sys, arcf.service.app, arcf.client\n"
-             "bad = sorted(m for m in sys.modules if m.startswith(('arcf.loadtools', "
-             "'matplotlib', 'arcf.eval')))\n"
-             "print(bad)")
-    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
-                         timeout=120, check=True)
-    assert out.stdout.strip() == "[]"
+def test_the_server_loads_without_the_tools(loaded_after: Callable[..., list[str]]) -> None:
+    assert loaded_after("import arcf.service.app, arcf.client",
+                        "arcf.loadtools", "matplotlib", "arcf.eval") == []
 
 
-def test_clients_do_not_load_the_tracker() -> None:
+def test_clients_do_not_load_the_tracker(loaded_after: Callable[..., list[str]]) -> None:
     """``arcf`` loads its library lazily: the wire contract, the client SDK and an adapter
     start without the tracker's modules or Numba."""
-    probe = ("import sys, arcf.schemas, arcf.client, arcf.adapters.mavlink\n"
-             "print(sorted(m for m in sys.modules if m == 'numba' or m.startswith("
-             "('arcf.tracker', 'arcf.features', 'arcf.admm', 'numba.'))))")
-    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
-                         timeout=120, check=True)
-    assert out.stdout.strip() == "[]"
+    assert loaded_after("import arcf.schemas, arcf.client, arcf.adapters.mavlink",
+                        "numba", "arcf.tracker", "arcf.features", "arcf.admm") == []
 
 
 def test_the_wheel_installs_one_namespace() -> None:

@@ -404,15 +404,8 @@ def load_dtb70(
         (p.name for p in root.iterdir() if (p / "groundtruth_rect.txt").is_file()),
         key=_natural_key,
     )
-    result = []
-    for name in _select(available, sequences, "dtb70", root):
-        anno = root / name / "groundtruth_rect.txt"
-        gt = read_annotation(anno)
-        img = root / name / "img"
-        frames = _numbered_frames(img, (f"{i:05d}.jpg" for i in range(1, gt.shape[0] + 1)))
-        _check_counts(f"dtb70/{name}", _count_images(img), anno, gt.shape[0])
-        result.append(Sequence(name, frames, gt, "dtb70"))
-    return result
+    return _numbered_sequences("dtb70", root, available, sequences, lambda name: (
+        root / name / "groundtruth_rect.txt", root / name / "img", "{:05d}.jpg"))
 
 
 # --------------------------------------------------------------------------- UAVDT
@@ -431,14 +424,28 @@ def load_uavdt(
     if not frames_root.is_dir():
         raise DatasetError(f"uavdt: frame folder not found: {frames_root}")
     available = sorted((p.name for p in frames_root.iterdir() if p.is_dir()), key=_natural_key)
+    return _numbered_sequences("uavdt", root, available, sequences, lambda name: (
+        root / "anno" / f"{name}_gt.txt", frames_root / name, "img{:06d}.jpg"))
+
+
+def _numbered_sequences(
+    dataset: str,
+    root: Path,
+    available: list[str],
+    sequences: Iterable[str] | None,
+    where: Callable[[str], tuple[Path, Path, str]],
+) -> list[Sequence]:
+    """The chosen sequences of a dataset whose frames are numbered from 1, one per annotation
+    row (DTB70, UAVDT): ``where(name)`` is a sequence's annotation file, frame folder and frame
+    name format. The first missing frame is named; extra images in the folder are reported as
+    a count mismatch. One loop, so that both datasets check their folders alike."""
     result = []
-    for name in _select(available, sequences, "uavdt", root):
-        anno = root / "anno" / f"{name}_gt.txt"
+    for name in _select(available, sequences, dataset, root):
+        anno, folder, frame_name = where(name)
         gt = read_annotation(anno)
-        folder = frames_root / name
-        frames = _numbered_frames(folder, (f"img{i:06d}.jpg" for i in range(1, gt.shape[0] + 1)))
-        _check_counts(f"uavdt/{name}", _count_images(folder), anno, gt.shape[0])
-        result.append(Sequence(name, frames, gt, "uavdt"))
+        frames = _numbered_frames(folder, (frame_name.format(i) for i in range(1, gt.shape[0] + 1)))
+        _check_counts(f"{dataset}/{name}", _count_images(folder), anno, gt.shape[0])
+        result.append(Sequence(name, frames, gt, dataset))
     return result
 
 

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .metrics import overlaps
+from .metrics import Ratio, overlaps
 from .results import list_result_sequences, read_run
 
 #: frames of delay a flag may take and still catch a failure frame (issue 16's criterion)
@@ -76,13 +76,8 @@ class FailureScore:
     delays: tuple[int, ...]
     delay: int = DEFAULT_DELAY
 
-    @property
-    def recall_at(self) -> float:
-        return self.caught / self.failure_frames if self.failure_frames else float("nan")
-
-    @property
-    def precision(self) -> float:
-        return self.flagged_failures / self.flagged if self.flagged else float("nan")
+    recall_at = Ratio("caught", "failure_frames")
+    precision = Ratio("flagged_failures", "flagged")
 
     @property
     def false_alarms_per_1000(self) -> float:

@@ -37,7 +37,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Any, Literal, overload
 
 import numpy as np
 
@@ -214,6 +214,28 @@ def precision_at(
 
 
 # --------------------------------------------------------------------------- scores
+
+
+class Ratio:
+    """A score record's figure that is one of its counts over another, NaN when that other is
+    0 (no frame to score: unknown, not 0). A descriptor, so that the long-term scores
+    (:mod:`arcf.eval.failure`, :mod:`arcf.eval.presence`) declare each such figure in one
+    line and share this one rule."""
+
+    def __init__(self, numerator: str, denominator: str) -> None:
+        self.numerator, self.denominator = numerator, denominator
+
+    @overload
+    def __get__(self, record: None, owner: type | None = None) -> Ratio: ...
+
+    @overload
+    def __get__(self, record: object, owner: type | None = None) -> float: ...
+
+    def __get__(self, record: Any, owner: type | None = None) -> Ratio | float:
+        if record is None:
+            return self
+        den = getattr(record, self.denominator)
+        return getattr(record, self.numerator) / den if den else float("nan")
 
 
 @dataclass(frozen=True, eq=False)

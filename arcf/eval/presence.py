@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .metrics import overlaps
+from .metrics import Ratio, overlaps
 from .results import list_result_sequences, read_run
 
 
@@ -46,25 +46,15 @@ class PresenceScore:
     #: IoU summed over the reported frames (0 where the target is not visible)
     overlap: float
 
-    @property
-    def precision(self) -> float:
-        return self.right / self.reported if self.reported else float("nan")
-
-    @property
-    def recall(self) -> float:
-        return self.right / self.visible if self.visible else float("nan")
+    precision = Ratio("right", "reported")
+    recall = Ratio("right", "visible")
+    #: VOT-LT's Pr and Re: the IoU summed over the reported frames, per reported / visible frame
+    tracking_precision = Ratio("overlap", "reported")
+    tracking_recall = Ratio("overlap", "visible")
 
     @property
     def f_score(self) -> float:
         return _f(np.nan_to_num(self.precision), np.nan_to_num(self.recall))
-
-    @property
-    def tracking_precision(self) -> float:
-        return self.overlap / self.reported if self.reported else float("nan")
-
-    @property
-    def tracking_recall(self) -> float:
-        return self.overlap / self.visible if self.visible else float("nan")
 
     @property
     def tracking_f(self) -> float:

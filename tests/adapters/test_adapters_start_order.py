@@ -6,13 +6,12 @@ from __future__ import annotations
 
 import subprocess
 import sys
-import threading
 
 import pytest
 
 pytest.importorskip("zenoh")
 
-from arcf.loadtools.procs import ServiceProcess, free_port
+from arcf.loadtools.procs import free_port
 from arcf.loadtools.waiting import wait_until
 
 COMMANDS = {
@@ -36,24 +35,15 @@ def test_without_a_service_each_adapter_gives_up_with_a_reason(name: str, tmp_pa
     assert "did not answer" in out.stderr and "giving up" in out.stderr
 
 
-def test_an_adapter_started_first_goes_on_when_the_service_comes(tmp_path) -> None:
-    """``arcf-record`` before the service: it waits, then records once the service is up."""
+def test_an_adapter_started_first_goes_on_when_the_service_comes(
+        tmp_path, started_before_the_service) -> None:
+    """``arcf-record`` before the service: it waits, then records once the service is up
+    (and, terminated after it, exits cleanly)."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    proc = subprocess.Popen([sys.executable, "-m", "arcf.adapters.record", "cam", "--out",
-                             str(tmp_path), "-e", endpoint, "--wait-s", "120"],
-                            stderr=subprocess.PIPE, text=True)
-    lines: list[str] = []
-    reader = threading.Thread(target=lambda: lines.extend(proc.stderr or []), daemon=True)
-    reader.start()
-    try:
-        wait_until(lambda: any("waiting for the tracking service" in x for x in lines),
-                   timeout=60, what="a line saying what it waits for")
-        with ServiceProcess(workers=1, listen=endpoint):
-            wait_until(lambda: any("the tracking service answers" in x for x in lines),
-                       timeout=120, what="the service found")
-            assert proc.poll() is None  # recording, not exited
-    finally:
-        proc.terminate()
-        code = proc.wait(timeout=30)
-        reader.join(10)
-    assert code == 0 and "Traceback" not in "".join(lines)
+    with started_before_the_service(
+            [sys.executable, "-m", "arcf.adapters.record", "cam", "--out", str(tmp_path),
+             "-e", endpoint, "--wait-s", "120"], endpoint) as early:
+        wait_until(lambda: any("the tracking service answers" in x for x in early.lines),
+                   timeout=120, what="the service found")
+        assert early.proc.poll() is None  # recording, not exited
+    assert early.code == 0 and "Traceback" not in "".join(early.lines)

@@ -332,7 +332,8 @@ def test_a_file_that_cannot_be_read_ends_with_its_reason(service, tmp_path) -> N
 
 
 # ---------------------------------------------------------------------------- the command
-def test_command_waits_for_a_service_that_starts_later(camera, tmp_path) -> None:
+def test_command_waits_for_a_service_that_starts_later(camera, tmp_path,
+                                                       started_before_the_service) -> None:
     """``arcf-ingest`` started before the service: it says what it waits for, then plays
     the file once the service answers; with nothing to wait for, exit 2 and a reason."""
     _, units, _, size = camera
@@ -340,22 +341,9 @@ def test_command_waits_for_a_service_that_starts_later(camera, tmp_path) -> None
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     cmd = [sys.executable, "-m", "arcf.adapters.ingest", str(mp4), "--stream", "late",
            "--as-fast-as-possible", "-e", endpoint]
-    proc = subprocess.Popen([*cmd, "--wait-s", "120"], stderr=subprocess.PIPE, text=True)
-    assert proc.stderr is not None
-    lines: list[str] = []
-    reader = threading.Thread(target=lambda: lines.extend(proc.stderr or []), daemon=True)
-    reader.start()
-    try:
-        wait_until(lambda: any("waiting for the tracking service" in x for x in lines),
-                   timeout=60, what="a line saying what it waits for")
-        with ServiceProcess(workers=1, listen=endpoint):
-            assert proc.wait(timeout=120) == 0
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-    reader.join(10)
-    text = "".join(lines)
+    with started_before_the_service([*cmd, "--wait-s", "120"], endpoint) as early:
+        assert early.proc.wait(timeout=120) == 0
+    text = "".join(early.lines)
     assert "Traceback" not in text and "no Zenoh router at" in text
     assert f"'published': {N}" in text
 

@@ -4,8 +4,7 @@ a session whose stream stopped is drawn again, marked stale, until frames resume
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-from types import SimpleNamespace
+from collections.abc import Iterable, Iterator
 from typing import Any
 
 import numpy as np
@@ -14,33 +13,6 @@ import pytest
 from arcf.adapters.liveview import STALE_BGR, Watch, colour_bgr, draw
 from arcf.adapters.tap import TapFrame
 from arcf.schemas import Result, ResultStatus
-
-
-class _Sub:
-    def close(self) -> None:
-        pass
-
-    undeclare = close
-
-
-class FakeClient:
-    """Just what a stream tap asks of a client: it keeps the callbacks to call them."""
-
-    def __init__(self) -> None:
-        self.callbacks: dict[str, Any] = {}
-        self.session = SimpleNamespace(declare_subscriber=self._declare)
-
-    def _declare(self, key: str, callback: Any) -> _Sub:
-        self.callbacks["video"] = callback
-        return _Sub()
-
-    def frames(self, stream_id: str, callback: Any) -> _Sub:
-        self.callbacks["frames"] = callback
-        return _Sub()
-
-    def results(self, stream_id: str, callback: Any) -> _Sub:
-        self.callbacks["results"] = callback
-        return _Sub()
 
 
 def result(session: str, seq: int, status: str = "tracking",
@@ -61,11 +33,12 @@ def stale(session: str, seq: int) -> Result:
 
 
 @pytest.fixture
-def watched() -> Iterator[tuple[Watch, Any]]:
-    """A stream's render state (no renderer running), and its frame callback; closed after."""
-    w = Watch(FakeClient(), "cam", max_fps=0.001, max_width=960, video_key=None)  # type: ignore[arg-type]
+def view(offline_client: Any) -> Iterator[Watch]:
+    """A stream's render state (no renderer running; frames in by its ``_on_frame``), closed
+    after. The client is the adapters' offline stand-in: a stream tap only keeps callbacks."""
+    w = Watch(offline_client, "cam", max_fps=0.001, max_width=960, video_key=None)
     try:
-        yield w, w._on_frame
+        yield w
     finally:
         w.close()
 
@@ -74,36 +47,34 @@ def frame(seq: int) -> TapFrame:
     return TapFrame("cam", seq, 1, "jpeg", b"jpeg")
 
 
-def test_the_newest_frame_every_session_answered_is_rendered_with_its_boxes(
-    watched: tuple[Watch, Any],
-) -> None:
-    w, on_frame = watched
-    for k in range(5):
-        on_frame(frame(k))
-    w._on_result(result("a", 3))
-    w._on_result(result("b", 2))
-    seq, _, drawn = w._pick()
+def feed(w: Watch, frames: Iterable[int], *answers: tuple[str, int]) -> None:
+    """The ``frames`` arrive, then each answer: session ``name``'s tracking result about the
+    frame numbered ``seq`` (the order every test here plays a stream in)."""
+    for k in frames:
+        w._on_frame(frame(k))
+    for name, seq in answers:
+        w._on_result(result(name, seq))
+
+
+def test_the_newest_frame_every_session_answered_is_rendered_with_its_boxes(view: Watch) -> None:
+    feed(view, range(5), ("a", 3), ("b", 2))
+    seq, _, drawn = view._pick()
     assert seq == 2
     assert {r.session_id: r.frame_seq for _, r in drawn} == {"b": 2}  # a's 3 is later
-    w._on_result(result("a", 2))
-    seq, _, drawn = w._pick()
+    view._on_result(result("a", 2))
+    seq, _, drawn = view._pick()
     assert {r.session_id: r.frame_seq for _, r in drawn} == {"a": 2, "b": 2}
 
 
-def test_an_ended_or_stale_session_does_not_freeze_the_view(watched: tuple[Watch, Any]) -> None:
-    w, on_frame = watched
-    for k in range(3):
-        on_frame(frame(k))
-    w._on_result(result("a", 2))
-    w._on_result(result("b", 1))
-    assert w._pick()[0] == 1
-    w._on_result(result("b", 1, status="stopped"))  # b ended
-    assert w._pick()[0] == 2
-    w._on_result(result("c", 0))  # c answers frame 0 only and falls behind
-    for k in range(3, 20):
-        on_frame(frame(k))
-    w._on_result(result("a", 19))
-    assert w._pick()[0] == 19  # frame 0 is long gone: c no longer holds it back
+def test_an_ended_or_stale_session_does_not_freeze_the_view(view: Watch) -> None:
+    feed(view, range(3), ("a", 2), ("b", 1))
+    assert view._pick()[0] == 1
+    view._on_result(result("b", 1, status="stopped"))  # b ended
+    assert view._pick()[0] == 2
+    view._on_result(result("c", 0))  # c answers frame 0 only and falls behind
+    feed(view, range(3, 20))
+    view._on_result(result("a", 19))
+    assert view._pick()[0] == 19  # frame 0 is long gone: c no longer holds it back
 
 
 def test_boxes_are_drawn_in_the_sessions_colour_where_the_result_says() -> None:
@@ -115,29 +86,22 @@ def test_boxes_are_drawn_in_the_sessions_colour_where_the_result_says() -> None:
     assert tuple(out[35, 30]) == (0, 0, 0)  # inside: untouched
 
 
-def test_a_stale_session_is_drawn_again_marked_until_a_frame_comes(
-    watched: tuple[Watch, Any],
-) -> None:
-    w, on_frame = watched
-    for k in range(3):
-        on_frame(frame(k))
-    w._on_result(result("a", 2))
-    w._on_result(result("b", 2))
-    seq, _, drawn = w._pick()
-    w.rendered_key = seq  # rendered
-    assert w._pick() is None  # nothing new: no frame, no change
-    w._on_result(stale("a", 2))  # a's stream stopped: the same frame, drawn again
-    seq, _, drawn = w._pick()
-    w.rendered_key = seq
+def test_a_stale_session_is_drawn_again_marked_until_a_frame_comes(view: Watch) -> None:
+    feed(view, range(3), ("a", 2), ("b", 2))
+    seq, _, drawn = view._pick()
+    view.rendered_key = seq  # rendered
+    assert view._pick() is None  # nothing new: no frame, no change
+    view._on_result(stale("a", 2))  # a's stream stopped: the same frame, drawn again
+    seq, _, drawn = view._pick()
+    view.rendered_key = seq
     by = {r.session_id: r for _, r in drawn}
     assert seq == 2 and by["a"].status == "stale" and by["a"].box == (11, 21, 40, 30)
     assert by["a"].message == "no frame for 1.0 s" and by["b"].status == "tracking"
-    w._on_result(stale("a", 2))  # the notice repeated: nothing to draw again
-    assert w._pick() is None
-    on_frame(frame(3))  # frames again: a's next result is about a frame, not stale
-    w._on_result(result("a", 3))
-    w._on_result(result("b", 3))
-    seq, _, drawn = w._pick()
+    view._on_result(stale("a", 2))  # the notice repeated: nothing to draw again
+    assert view._pick() is None
+    # frames again: a's next result is about a frame, not stale
+    feed(view, [3], ("a", 3), ("b", 3))
+    seq, _, drawn = view._pick()
     assert seq == 3 and all(r.status == "tracking" for _, r in drawn)
 
 
@@ -151,32 +115,26 @@ def test_a_stale_box_is_grey_and_thin_not_the_sessions_colour() -> None:
     assert not (out == np.array(colour_bgr(0), np.uint8)).all(axis=2).any()
 
 
-def test_on_the_video_key_results_meet_their_pictures_by_capture_time(
-    watched: tuple[Watch, Any],
-) -> None:
+def test_on_the_video_key_results_meet_their_pictures_by_capture_time(view: Watch) -> None:
     """Opened mid-stream: the view numbers the video key's units from its subscription, the
     service from its own (here 57 units earlier); the timestamp names the same picture."""
-    w, on_frame = watched
     for k in range(5):
-        on_frame(TapFrame("cam", k, 1000 * (k + 1), "jpeg", b"jpeg", source="compressed_video"))
+        view._on_frame(TapFrame("cam", k, 1000 * (k + 1), "jpeg", b"jpeg",
+                                source="compressed_video"))
     for k in range(4):  # the service's numbers for the first four pictures
-        w._on_result(result("a", 57 + k).model_copy(update={"capture_ts_ns": 1000 * (k + 1)}))
-    key, _, drawn = w._pick()
+        view._on_result(result("a", 57 + k).model_copy(
+            update={"capture_ts_ns": 1000 * (k + 1)}))
+    key, _, drawn = view._pick()
     assert key == 4000 and [(r.frame_seq, r.capture_ts_ns) for _, r in drawn] == [(60, 4000)]
-    w.rendered_key = key
-    w._on_result(result("a", 61).model_copy(update={"capture_ts_ns": 5000}))
-    key, _, drawn = w._pick()
+    view.rendered_key = key
+    view._on_result(result("a", 61).model_copy(update={"capture_ts_ns": 5000}))
+    key, _, drawn = view._pick()
     assert key == 5000 and [r.frame_seq for _, r in drawn] == [61]
 
 
-def test_a_restarted_numbering_is_followed(watched: tuple[Watch, Any]) -> None:
-    w, on_frame = watched
-    for k in range(100, 105):
-        on_frame(frame(k))
-    w._on_result(result("a", 104))
-    assert w._pick()[0] == 104
-    for k in range(3):  # the camera restarted from 0
-        on_frame(frame(k))
-    w._on_result(result("a", 2))
-    key, _, drawn = w._pick()
+def test_a_restarted_numbering_is_followed(view: Watch) -> None:
+    feed(view, range(100, 105), ("a", 104))
+    assert view._pick()[0] == 104
+    feed(view, range(3), ("a", 2))  # the camera restarted from 0
+    key, _, drawn = view._pick()
     assert key == 2 and [r.frame_seq for _, r in drawn] == [2]

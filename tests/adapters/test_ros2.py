@@ -2,18 +2,15 @@
 implementation (pycdr2) playing the ROS 2 nodes: keys, type names and hashes, CDR bytes,
 attachments and liveliness tokens, then real frames in as CompressedImage and the service's
 results out as Detection2DArray, sessions started and stopped from a topic, a stream that
-stops reported as STALE on /diagnostics (and no box to follow) until its images resume.
-
-(No ``from __future__ import annotations``: pycdr2 reads the dataclasses' real types.)"""
-
+stops reported as STALE on /diagnostics (and no box to follow) until its images resume."""
 
 import time
-from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import pytest
 import zenoh
-from pycdr2 import IdlStruct
+from pycdr2 import make_idl_struct
 from pycdr2.types import array, float64, int32, sequence, uint8, uint32
 from zenoh.ext import Int64, z_deserialize
 
@@ -43,116 +40,38 @@ STRING_HASH = "RIHS01_df668c740482bbd48fb39d76a70dfd4bd59db1288021743503259e948f
 
 
 # --- the messages, written independently for pycdr2 ------------------------------------------
-@dataclass
-class Time(IdlStruct, typename="builtin_interfaces/msg/Time"):
-    sec: int32
-    nanosec: uint32
+def struct(typename: str, **fields: Any) -> Any:
+    """pycdr2's struct for ROS 2's ``typename`` (``pkg/msg/Name``), its fields in the .msg's
+    order: pycdr2's own ``make_idl_struct`` builds the dataclass, so each message is one
+    declaration from ROS's definitions (none of it shared with arcf's ros2_types)."""
+    return make_idl_struct(typename.rsplit("/", 1)[-1], typename, fields)
 
 
-@dataclass
-class Header(IdlStruct, typename="std_msgs/msg/Header"):
-    stamp: Time
-    frame_id: str
-
-
-@dataclass
-class CompressedImage(IdlStruct, typename="sensor_msgs/msg/CompressedImage"):
-    header: Header
-    format: str
-    data: sequence[uint8]
-
-
-@dataclass
-class Point(IdlStruct, typename="geometry_msgs/msg/Point"):
-    x: float64
-    y: float64
-    z: float64
-
-
-@dataclass
-class Quaternion(IdlStruct, typename="geometry_msgs/msg/Quaternion"):
-    x: float64
-    y: float64
-    z: float64
-    w: float64
-
-
-@dataclass
-class Pose(IdlStruct, typename="geometry_msgs/msg/Pose"):
-    position: Point
-    orientation: Quaternion
-
-
-@dataclass
-class PoseWithCovariance(IdlStruct, typename="geometry_msgs/msg/PoseWithCovariance"):
-    pose: Pose
-    covariance: array[float64, 36]
-
-
-@dataclass
-class ObjectHypothesis(IdlStruct, typename="vision_msgs/msg/ObjectHypothesis"):
-    class_id: str
-    score: float64
-
-
-@dataclass
-class ObjectHypothesisWithPose(IdlStruct, typename="vision_msgs/msg/ObjectHypothesisWithPose"):
-    hypothesis: ObjectHypothesis
-    pose: PoseWithCovariance
-
-
-@dataclass
-class Point2D(IdlStruct, typename="vision_msgs/msg/Point2D"):
-    x: float64
-    y: float64
-
-
-@dataclass
-class Pose2D(IdlStruct, typename="vision_msgs/msg/Pose2D"):
-    position: Point2D
-    theta: float64
-
-
-@dataclass
-class BoundingBox2D(IdlStruct, typename="vision_msgs/msg/BoundingBox2D"):
-    center: Pose2D
-    size_x: float64
-    size_y: float64
-
-
-@dataclass
-class Detection2D(IdlStruct, typename="vision_msgs/msg/Detection2D"):
-    header: Header
-    results: sequence[ObjectHypothesisWithPose]
-    bbox: BoundingBox2D
-    id: str
-
-
-@dataclass
-class Detection2DArray(IdlStruct, typename="vision_msgs/msg/Detection2DArray"):
-    header: Header
-    detections: sequence[Detection2D]
-
-
-@dataclass
-class KeyValue(IdlStruct, typename="diagnostic_msgs/msg/KeyValue"):
-    key: str
-    value: str
-
-
-@dataclass
-class DiagnosticStatus(IdlStruct, typename="diagnostic_msgs/msg/DiagnosticStatus"):
-    level: uint8  # ROS's "byte"
-    name: str
-    message: str
-    hardware_id: str
-    values: sequence[KeyValue]
-
-
-@dataclass
-class DiagnosticArray(IdlStruct, typename="diagnostic_msgs/msg/DiagnosticArray"):
-    header: Header
-    status: sequence[DiagnosticStatus]
+Time = struct("builtin_interfaces/msg/Time", sec=int32, nanosec=uint32)
+Header = struct("std_msgs/msg/Header", stamp=Time, frame_id=str)
+CompressedImage = struct("sensor_msgs/msg/CompressedImage", header=Header, format=str,
+                         data=sequence[uint8])
+Point = struct("geometry_msgs/msg/Point", x=float64, y=float64, z=float64)
+Quaternion = struct("geometry_msgs/msg/Quaternion", x=float64, y=float64, z=float64, w=float64)
+Pose = struct("geometry_msgs/msg/Pose", position=Point, orientation=Quaternion)
+PoseWithCovariance = struct("geometry_msgs/msg/PoseWithCovariance", pose=Pose,
+                            covariance=array[float64, 36])
+ObjectHypothesis = struct("vision_msgs/msg/ObjectHypothesis", class_id=str, score=float64)
+ObjectHypothesisWithPose = struct("vision_msgs/msg/ObjectHypothesisWithPose",
+                                  hypothesis=ObjectHypothesis, pose=PoseWithCovariance)
+Point2D = struct("vision_msgs/msg/Point2D", x=float64, y=float64)
+Pose2D = struct("vision_msgs/msg/Pose2D", position=Point2D, theta=float64)
+BoundingBox2D = struct("vision_msgs/msg/BoundingBox2D", center=Pose2D, size_x=float64,
+                       size_y=float64)
+Detection2D = struct("vision_msgs/msg/Detection2D", header=Header,
+                     results=sequence[ObjectHypothesisWithPose], bbox=BoundingBox2D, id=str)
+Detection2DArray = struct("vision_msgs/msg/Detection2DArray", header=Header,
+                          detections=sequence[Detection2D])
+KeyValue = struct("diagnostic_msgs/msg/KeyValue", key=str, value=str)
+DiagnosticStatus = struct("diagnostic_msgs/msg/DiagnosticStatus", level=uint8,  # ROS's "byte"
+                          name=str, message=str, hardware_id=str, values=sequence[KeyValue])
+DiagnosticArray = struct("diagnostic_msgs/msg/DiagnosticArray", header=Header,
+                         status=sequence[DiagnosticStatus])
 
 
 def test_keys_type_names_and_hashes_are_rmw_zenohs() -> None:

@@ -615,44 +615,35 @@ def test_spatial_response_hermitian_is_irfft2() -> None:
 
 
 @pytest.mark.parametrize("shape", [(12, 10), (9, 7)])
-def test_spatial_response_non_hermitian_2d_keeps_first_half_of_columns(
-    shape: tuple[int, int],
+@pytest.mark.parametrize(("stack", "seed", "ignored", "used"), [
+    # a 2-D map: the second half along columns is ignored (MATLAB's ifft2(..., 'symmetric')),
+    # the second half along rows is used
+    (None, 9, -1, -2),
+    # a stack of maps (ARCF-H's scales): the redundant half is taken along the rows instead
+    (5, 10, -2, -1),
+], ids=["2d_keeps_first_half_of_columns", "stack_keeps_first_half_of_rows"])
+def test_spatial_response_non_hermitian_keeps_one_half(
+    shape: tuple[int, int], stack: int | None, seed: int, ignored: int, used: int,
 ) -> None:
-    h, w = shape
-    rng = np.random.default_rng(9)
-    m = rng.standard_normal(shape)
-    spectrum = sfft.fft2(m)
-    garbage = rng.standard_normal(shape) + 1j * rng.standard_normal(shape)
-    # the second half along columns is ignored (MATLAB's ifft2(..., 'symmetric') on a 2-D map)
-    cols = spectrum.copy()
-    cols[:, w // 2 + 1 :] = garbage[:, w // 2 + 1 :]
-    np.testing.assert_allclose(spatial_response(cols, shape, False), m, atol=1e-12)
-    # ... but the second half along rows is used
-    rows = spectrum.copy()
-    rows[h // 2 + 1 :, :] = garbage[h // 2 + 1 :, :]
-    assert not np.allclose(spatial_response(rows, shape, False), m)
-
-
-@pytest.mark.parametrize("shape", [(12, 10), (9, 7)])
-def test_spatial_response_non_hermitian_stack_keeps_first_half_of_rows(
-    shape: tuple[int, int],
-) -> None:
-    h, w = shape
-    rng = np.random.default_rng(10)
-    m = rng.standard_normal((5, *shape))
+    rng = np.random.default_rng(seed)
+    m = rng.standard_normal(shape if stack is None else (stack, *shape))
     spectrum = sfft.fft2(m)
     garbage = rng.standard_normal(spectrum.shape) + 1j * rng.standard_normal(spectrum.shape)
-    # for a stack of maps (ARCF-H's scales) the redundant half is taken along the rows
-    rows = spectrum.copy()
-    rows[:, h // 2 + 1 :, :] = garbage[:, h // 2 + 1 :, :]
-    out = spatial_response(rows, shape, False)
+
+    def second_half_garbled(axis: int) -> np.ndarray:
+        out = spectrum.copy()
+        half = [slice(None)] * out.ndim
+        half[axis] = slice(out.shape[axis] // 2 + 1, None)
+        out[tuple(half)] = garbage[tuple(half)]
+        return out
+
+    out = spatial_response(second_half_garbled(ignored), shape, False)
     assert out.shape == m.shape
     np.testing.assert_allclose(out, m, atol=1e-12)
-    cols = spectrum.copy()
-    cols[:, :, w // 2 + 1 :] = garbage[:, :, w // 2 + 1 :]
-    assert not np.allclose(spatial_response(cols, shape, False), m)
+    assert not np.allclose(spatial_response(second_half_garbled(used), shape, False), m)
     # on a Hermitian spectrum both conventions agree with the true inverse
-    np.testing.assert_allclose(spatial_response(spectrum[0], shape, False), m[0], atol=1e-12)
+    one, want = (spectrum, m) if stack is None else (spectrum[0], m[0])
+    np.testing.assert_allclose(spatial_response(one, shape, False), want, atol=1e-12)
 
 
 def test_peak_to_sidelobe() -> None:

@@ -4,8 +4,7 @@ by one validator."""
 
 from __future__ import annotations
 
-import subprocess
-import sys
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -43,14 +42,9 @@ def test_preset_names_are_normalised_in_one_place() -> None:
     assert isinstance(create_tracker("Arcf_H"), ARCFTracker)
 
 
-def test_listing_presets_imports_no_tracker() -> None:
-    probe = ("import sys, arcf.registry as r\n"
-             "assert 'arcf-nano' in r.ALL_PRESETS\n"
-             "print(sorted(m for m in sys.modules if m in ('arcf.tracker', 'arcf.siamese', "
-             "'arcf.hybrid')))")
-    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
-                         timeout=120, check=True)
-    assert out.stdout.strip() == "[]"
+def test_listing_presets_imports_no_tracker(loaded_after: Callable[..., list[str]]) -> None:
+    assert loaded_after("import arcf.registry as r\nassert 'arcf-nano' in r.ALL_PRESETS",
+                        "arcf.tracker", "arcf.siamese", "arcf.hybrid") == []
 
 
 @dataclass(frozen=True)

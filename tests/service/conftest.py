@@ -1,12 +1,16 @@
-"""What the server's tests share: payloads a hostile (or merely broken) ground station sends."""
+"""What the server's tests share: payloads a hostile (or merely broken) ground station sends,
+and the short real clip the stations replay."""
 
 from __future__ import annotations
 
 import struct
 import zlib
 from collections.abc import Callable
+from typing import Any
 
 import pytest
+
+from arcf.loadtools.driver import Clip
 
 
 def _png_bomb(width: int, height: int) -> bytes:
@@ -29,3 +33,11 @@ def _png_bomb(width: int, height: int) -> bytes:
 def png_bomb() -> Callable[[int, int], bytes]:
     """``png_bomb(width, height)``: a valid PNG of that many zero pixels, tiny on the wire."""
     return _png_bomb
+
+
+@pytest.fixture(scope="module")
+def clip(wakeboard7: Any) -> Clip:
+    """wakeboard7's first 40 frames as a station replays them: a real stream long enough for
+    the attacks and the budget tests, loaded once per module (a module that needs another
+    length defines its own ``clip``)."""
+    return Clip.of(wakeboard7, limit=40)

@@ -20,7 +20,6 @@ pytest.importorskip("zenoh")
 
 from arcf.client import ServiceError, TrackingClient
 from arcf.data import data_root
-from arcf.eval import load_dataset
 from arcf.loadtools.driver import Clip, Fleet, Pacing
 from arcf.loadtools.procs import ServiceProcess
 from arcf.loadtools.waiting import wait_until
@@ -40,12 +39,6 @@ def service():
     svc = ServiceProcess("--max-stream-fps", "30")
     yield svc
     assert svc.stop() == 0
-
-
-@pytest.fixture(scope="module")
-def clip() -> Clip:
-    (seq,) = load_dataset("uav123_10fps", sequences=["wakeboard7"])
-    return Clip.of(seq, limit=40)
 
 
 def errors_by_kind(svc: ServiceProcess) -> dict[str, float]:
@@ -93,6 +86,16 @@ class Victim:
         assert counts["unaccounted"] == 0 and counts["out_of_order"] == 0, counts
         assert self.notices == [], [n.code for n in self.notices]
         return window
+
+    def noticed(self, code: str, t0: float) -> None:
+        """An attack on the victim's own key earns it one notice: wait for it, let the
+        victim's frames sent after it through (nothing else came of the attack), assert it is
+        exactly one ``code`` notice, and :meth:`check` the window since ``t0`` as usual."""
+        wait_until(lambda: bool(self.notices), timeout=30, what="a notice to the victim")
+        self.caught_up()
+        assert [n.code.value for n in self.notices] == [code]
+        self.notices.clear()
+        self.check(t0)
 
     def close(self) -> None:
         self.fleet.close()
@@ -152,11 +155,7 @@ def test_a_rogue_frame_number_on_the_streams_own_key_cannot_lock_it_out(service,
                                                encoding="jpeg", payload=b"x")), raw=False)
             raw["seq"] = -5
             client.session.put(KEYS.frames("victim-seq"), msgpack.packb(raw))
-            wait_until(lambda: bool(victim.notices), timeout=30, what="a notice to the victim")
-            victim.caught_up()  # nothing else came of it
-            assert [n.code.value for n in victim.notices] == ["invalid_request"]
-            victim.notices.clear()
-            victim.check(t0)
+            victim.noticed("invalid_request", t0)
         finally:
             victim.close()
 
@@ -503,12 +502,8 @@ def test_oversized_frames_are_refused_where_they_can_be_seen(service, clip) -> N
                     stream_id="victim-big", seq=seq, capture_ts_ns=1, encoding="jpeg",
                     payload=os.urandom(mib << 20))),
                     congestion_control=zenoh.CongestionControl.BLOCK)
-            wait_until(lambda: bool(victim.notices), timeout=30, what="a notice to the victim")
-            victim.caught_up()  # the victim's frames sent after both are through
+            victim.noticed("oversized_payload", t0)  # once both are through
             assert errors_by_kind(service)["oversized_payload"] == before + 1
-            assert [n.code.value for n in victim.notices] == ["oversized_payload"]
-            victim.notices.clear()
-            victim.check(t0)
         finally:
             victim.close()
 

@@ -16,7 +16,6 @@ pytest.importorskip("zenoh")
 
 from arcf.client import TrackingClient
 from arcf.data import data_root
-from arcf.eval import load_dataset
 from arcf.loadtools.driver import Clip
 from arcf.loadtools.procs import ServiceProcess
 from arcf.loadtools.video import encode_video
@@ -29,12 +28,6 @@ pytestmark = [pytest.mark.integration,
                                  reason="needs ../shared/data")]
 
 KEYS = KeySpace()
-
-
-@pytest.fixture(scope="module")
-def clip() -> Clip:
-    (seq,) = load_dataset("uav123_10fps", sequences=["wakeboard7"])
-    return Clip.of(seq, limit=40)
 
 
 class Station:

@@ -1,0 +1,25 @@
+"""What the benchmarks share: the start of their command line.
+
+Each benchmark is a script (``python benchmarks/NAME.py``) that imports this module from beside
+it, as compare.py imports speed.py. The options most of them take, the tracker preset and the
+frame rate, are declared here once, so that every ``--help`` spells, types and explains them
+alike; each benchmark gives its own defaults.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+
+def parser(doc: str | None, *, preset: str | None = None, fps: float | None = None,
+           fps_help: str = "frames a second, per stream") -> argparse.ArgumentParser:
+    """A benchmark's parser: the first line of ``doc`` (its module docstring) as the
+    description, then ``--preset`` and ``--fps`` with these defaults; an option whose default
+    is None is not offered."""
+    ap = argparse.ArgumentParser(description=doc.splitlines()[0] if doc else None)
+    if preset is not None:
+        ap.add_argument("--preset", default=preset,
+                        help="the tracker preset (a name arcf.registry knows)")
+    if fps is not None:
+        ap.add_argument("--fps", type=float, default=fps, help=fps_help)
+    return ap
