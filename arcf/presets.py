@@ -113,7 +113,7 @@ class TrackerParams:
     #: sampler, one area resize per window, bit for bit (``mexResize``). "pyramid": windows
     #: more than twice the working size are read from one shared halving pyramid by bilinear
     #: interpolation (``arcf.features.patches.pyramid_windows``), an approximation that is
-    #: several times cheaper on large targets (docs/benchmarks.md, "Speed").
+    #: several times cheaper on large targets (docs/results-speed.md).
     sampling: SamplingMode = "release"
     #: Spectral layout. "release": as the release computes. With ``aberrance="release"`` and
     #: gamma > 0 that means full spectra (its target is a spatial map used as a spectrum, so
@@ -127,7 +127,7 @@ class TrackerParams:
     #: ``ifft2(.., 'symmetric')`` reading half of a non-symmetric spectrum. Newton's search
     #: reads the correlation's own spectrum, completed by symmetry (the release hands its
     #: ``responsef`` to ``resp_newton``), one transform less. An approximation, measured in
-    #: docs/benchmarks.md, "Speed".
+    #: docs/results-speed.md.
     spectra: SpectraMode = "release"
     #: Where each frame's training sample comes from. "extract" (release): a new window cut
     #: at the new position and scale, its features and their DFT. "shift": the detection
@@ -137,7 +137,7 @@ class TrackerParams:
     #: frame; an approximation (the wrapped-in border is the opposite border's, the cell grid
     #: is the detection window's). It loses UAV123 truck4_2 in ARCF-H, so no ARCF preset uses
     #: it (the hybrid's verifier does: its box is the network's)
-    #: (docs/benchmarks.md, "Speed").
+    #: (docs/results-speed.md).
     training_sample: TrainingSampleMode = "extract"
     #: Scale each feature sample to unit mean energy per element, as ECO/STRCF's
     #: ``extract_features`` does (``normalize_power = 2``, ``normalize_size``, ``normalize_dim``).
@@ -249,16 +249,16 @@ ARCF_H = TrackerParams(
     newton_iterations=50,  # release (BACF)
     round_translation=True,  # release (BACF)
     sizing="filter_max_area",
-    # Not the release's sampler: measured on the 9 shared sequences (docs/benchmarks.md, "Speed"),
+    # Not the release's sampler: measured on the 9 shared sequences (docs/results-speed.md),
     # the pyramid keeps precision / AUC within 0.005 of the exact sampler (arcf-h 0.592 / 0.348
     # against 0.592 / 0.350, bacf 0.508 / 0.310 against 0.513 / 0.311), losing no sequence,
     # and cuts the time per frame on large targets. RELEASE_COMPATIBLE restores the release's.
     sampling="pyramid",
-    # Measured best on the 9 shared sequences (docs/benchmarks.md, "Fidelity"): the release's form
+    # Measured best on the 9 shared sequences (docs/results-fidelity.md): the release's form
     # P 0.592 / AUC 0.350, the paper's 0.521 / 0.315 at any γ in 0..1.5 (it loses truck4_2).
     aberrance="release",
     # Not the release's layout: its target's conjugate-symmetric part in half spectra, measured
-    # on the 9 shared sequences with the pyramid (docs/benchmarks.md, "Speed"): P / AUC
+    # on the 9 shared sequences with the pyramid (docs/results-speed.md): P / AUC
     # 0.598 / 0.358 against the release-compatible 0.592 / 0.350, no sequence lost, 1.2x the
     # frame rate.
     spectra="half",
@@ -284,9 +284,9 @@ ARCF_HC = TrackerParams(
     sizing="sample_area",
     whole_pixel_boxes=True,  # release: reported boxes rounded to whole pixels
     # The release's sampler: with the pyramid, ARCF-HC loses DTB70 BMX3 (precision 0.471 ->
-    # 0.074; mean 0.740 / 0.509 -> 0.704 / 0.490, docs/benchmarks.md, "Speed").
+    # 0.074; mean 0.740 / 0.509 -> 0.704 / 0.490, docs/results-speed.md).
     sampling="release",
-    # Measured best on the 9 shared sequences (docs/benchmarks.md, "Fidelity"): the paper's form
+    # Measured best on the 9 shared sequences (docs/results-fidelity.md): the paper's form
     # P 0.740 / AUC 0.509 (= the authors' published 0.740 / 0.508), the release's 0.699 / 0.494.
     aberrance="paper",
 )
@@ -364,7 +364,7 @@ ARCF_NANO = HybridParams(
                           bias=1.6131)))
 
 #: The overrides that turn a preset into the authors' release, the configuration whose boxes
-#: are compared with the release's own runs (docs/benchmarks.md, "Fidelity"):
+#: are compared with the release's own runs (docs/results-fidelity.md):
 #: ``create_tracker("arcf-h", **RELEASE_COMPATIBLE)``. fHOG replays the SSE instructions of
 #: the AMD EPYC that traced the release (a table shipped with the package), so the boxes are
 #: the same on any CPU.
@@ -429,7 +429,7 @@ class Tunable:
 
 
 #: Every parameter a caller may override, with its declared type and range (the table of
-#: docs/library.md, "What an override accepts"). ``name`` is fixed by the preset;
+#: docs/presets.md, "What an override accepts"). ``name`` is fixed by the preset;
 #: ``fhog_sse_table`` is a host path (library only).
 TUNABLE: Mapping[str, Tunable] = MappingProxyType({
     "features": Tunable(tuple, choices=("gray", "fhog", "cn")),

@@ -10,7 +10,7 @@ containers: paced streams of a real sequence through the router's published port
 trial ``docker kill`` of the instance owning most streams (its streams resume on the other),
 ``docker-compose start`` of it (it takes its share back), and ``docker pause`` (a frozen
 container, found out by the Zenoh lease), then ``docker unpause``. Prints Markdown for
-``docs/benchmarks.md``, "Containers" and leaves nothing running.
+``docs/results-scale.md``, "Containers" and leaves nothing running.
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Fidelity benchmark: our trackers next to the authors' release and their published boxes.
 
 Runs one-pass evaluation of each configuration on every sequence present under the data root
-(UAV123@10fps, DTB70, UAVDT layouts) and prints the Markdown of ``docs/benchmarks.md``, "Fidelity":
+(UAV123@10fps, DTB70, UAVDT layouts) and prints the Markdown of ``docs/results-fidelity.md``:
 
 1. accuracy (toolkit convention) of each configuration next to the release run here
    (``reference_release/boxes``) and the authors' published boxes of the same tracker;

@@ -27,7 +27,7 @@ got (timed: at ``--max-fps`` 5, one every 200 ms when all is well):
 - long-query: ``?after=`` with 5,000 digits;
 - and at the end SIGTERM: its exit code.
 
-Prints Markdown tables (docs/benchmarks.md, "Hostile clients of the adapters") and writes
+Prints Markdown tables (docs/results-robustness.md, "Hostile clients of the adapters") and writes
 hostile_adapters.json.
 """
 

@@ -226,7 +226,7 @@ def pyramid_windows(
 
     Why: ARCF-H shrinks five nearly equal ~1100-px windows per frame on a large target, and
     the DSST scale filter of ARCF-HC 33 windows twice a frame; one shared halving pyramid
-    reads each source pixel once instead of once per window (docs/benchmarks.md, "Speed" measures
+    reads each source pixel once instead of once per window (docs/results-speed.md measures
     the speed and the accuracy against the exact sampler).
     """
     oh, ow = out_hw

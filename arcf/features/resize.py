@@ -2,7 +2,7 @@
 
 The release samples every window with ``mexResize`` (OpenCV's ``resize``), and ARCF-H cuts six
 windows per frame; on a large target each is a ~1100x1100 crop shrunk to 200x200, 5-6 ms apiece
-in OpenCV, half of the tracker's time (docs/benchmarks.md, "Speed"). OpenCV's area path
+in OpenCV, half of the tracker's time (docs/results-speed.md). OpenCV's area path
 (``ResizeArea_Invoker``) is scalar code whose inner statement ``buf[dx] += S[sx] * alpha``
 re-reads the value it stored one iteration earlier, so it runs at the latency of a store, a load
 and an add per source pixel and channel.

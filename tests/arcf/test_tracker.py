@@ -327,7 +327,7 @@ def test_paper_and_release_aberrance_formulations(preset: str) -> None:
     kw = (("n", 15),)
     paper = tracked(preset, kw, aberrance="paper")
     release = tracked(preset, kw, aberrance="release")
-    # each preset ships the formulation that measured best (docs/benchmarks.md, "Fidelity")
+    # each preset ships the formulation that measured best (docs/results-fidelity.md)
     assert make_params(preset).aberrance == {"arcf-h": "release", "arcf-hc": "paper"}[preset]
     _, gt = scene(**dict(kw))
     for results in (paper, release):
@@ -842,17 +842,17 @@ def test_documented_preset_values() -> None:
         assert p.output_sigma_factor == 1 / 16
         assert p.fhog_arithmetic == "release"  # the toolbox's SSE approximations
     # ARCF-H and BACF sample with the pyramid (as accurate, faster), ARCF-HC with the
-    # release's get_pixels, which it needs to keep BMX3 (docs/benchmarks.md, "Speed")
+    # release's get_pixels, which it needs to keep BMX3 (docs/results-speed.md)
     assert ARCF_H.sampling == BACF.sampling == "pyramid" and ARCF_HC.sampling == "release"
     release = make_params("arcf-h", **arcf.RELEASE_COMPATIBLE)
     assert (release.aberrance, release.sampling, release.fhog_arithmetic, release.spectra,
             release.training_sample) == ("release", "release", "release", "release", "extract")
     # ARCF-H solves in half spectra (as accurate, faster); every preset extracts its training
     # sample as the release does (shifting the detection sample lost truck4_2,
-    # docs/benchmarks.md, "Speed")
+    # docs/results-speed.md)
     assert ARCF_H.spectra == "half" and ARCF_HC.spectra == "release"
     assert ARCF_H.training_sample == ARCF_HC.training_sample == BACF.training_sample == "extract"
-    # each ships the aberrance formulation that measured best (docs/benchmarks.md, "Fidelity")
+    # each ships the aberrance formulation that measured best (docs/results-fidelity.md)
     assert ARCF_H.aberrance == "release" and ARCF_HC.aberrance == "paper"
     # ARCF-H: the release's values (paper: 5 iterations, 0.0192)
     assert ARCF_H.name == "arcf-h" and ARCF_H.features == ("fhog",)

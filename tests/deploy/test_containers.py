@@ -228,7 +228,7 @@ def _assert_flowing(record: StreamRecord, t0: float, t_done: float) -> None:
     ``dropped``). So: every frame is answered or counted as dropped, in order; frames are shed
     only while the takeover is in progress, so no more than the stream sent from ``t0`` to
     ``t_done`` plus a frame queue's worth as the survivor catches up (how many that is on a
-    given machine, 1-8 per event in docs/benchmarks.md, "Containers", is the machine's
+    given machine, 1-8 per event in docs/results-scale.md, "Containers", is the machine's
     figure); and its results go on afterwards (the caller waits for them).
     """
     name = record.name

@@ -328,7 +328,7 @@ def test_score_folder(tmp_path: Path) -> None:
 PUBLISHED = data_root() / "published_results"
 
 # (dataset, convention) -> (precision@20, AUC) of the authors' ARCF-HC boxes, as in
-# docs/evaluation.md (toolkit) and the clean figure quoted there for UAV123@10fps.
+# docs/evaluate.md (toolkit) and the clean figure quoted there for UAV123@10fps.
 EXPECTED = {
     ("UAV123_10fps", "toolkit"): (0.666, 0.473),
     ("DTB70", "toolkit"): (0.696, 0.472),
