@@ -39,7 +39,7 @@ def load_extension(path: Path) -> None:
     module = importlib.util.module_from_spec(spec)
     loader.exec_module(module)
     sys.modules[name] = module
-    import arcf.service
+    import arcf.client.media
 
     arcf.client.media._jpegregion = module
 

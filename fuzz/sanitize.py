@@ -27,7 +27,7 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
-SOURCE = ROOT / "service" / "_jpegregion.c"
+SOURCE = ROOT / "client" / "media" / "_jpegregion.c"
 #: the decoder's tests and the corpus replay, run on the sanitized build
 TESTS = ["tests/service/test_region_decode.py", "tests/service/test_fuzz_corpus.py",
          "tests/service/test_jpegregion.py"]
