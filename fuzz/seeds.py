@@ -13,6 +13,7 @@ files are kept in the repository, so only regenerating them needs it.
 
 from __future__ import annotations
 
+import base64
 import hashlib
 import io
 import shutil
@@ -193,8 +194,28 @@ def cdrs() -> Iterator[tuple[str, bytes]]:
                                                          1_700_000_000_000_000_000, "camera")
 
 
+#: Inputs the fuzzer found that broke a contract, kept as seeds once fixed (target -> name,
+#: base64): each is replayed on every run of the tests.
+FOUND: dict[str, list[tuple[str, str]]] = {
+    # an arithmetic-coded JPEG whose header declares colour space 6: simplejpeg's header
+    # reader raised KeyError (client/media/images.py now leaves such a picture to OpenCV)
+    "image": [("found_simplejpeg_unknown_colorspace",
+               "Av/Y/+AAEEpGSUYAAQEAAMIAAQAA/9sAQwAIBgYHCQUHBgcJBwgICgwUDQwLCwwZEhMPFB0aHx4dGhwc"
+               "JCQuJyAiLCMcHCg3KSwwMTQ0NB8nOT04MjwuMzQy/9sAQwEJCQkMCwwYDQ0YMiEcITIyMjIyMjIyMjIy"
+               "MjIyMjIyMjMyMjIyMjIyMjIyMjIyMjIyMjExMTExMTExMTExMTEx/8kAEQgAMABAAwEUAAIRAQMRAf/a"
+               "AAwDAQACEQO/HLIC/0o=")],
+}
+
+
 def corpus() -> dict[str, list[tuple[str, bytes]]]:
-    """target -> (seed name, bytes)."""
+    """target -> (seed name, bytes): the made seeds, then what fuzzing found (``FOUND``)."""
+    made = _made()
+    for target, found in FOUND.items():
+        made[target] += [(name, base64.b64decode(text)) for name, text in found]
+    return made
+
+
+def _made() -> dict[str, list[tuple[str, bytes]]]:
     images = [*jpegs(), *pngs()]
     jpeg_only = [(n, d) for n, d in images if not n.startswith("png")]
     # jpeg_region: the rectangle's fractions, then the picture

@@ -70,7 +70,9 @@ def _decode_jpeg(payload: bytes) -> np.ndarray | None:
             return simplejpeg.decode_jpeg(payload, colorspace="BGR")
         if colorspace == "Gray":
             return simplejpeg.decode_jpeg(payload, colorspace="GRAY")[..., 0]
-    except (ValueError, TypeError):  # refused: OpenCV decides
+    except (ValueError, TypeError, KeyError):  # refused: OpenCV decides
+        # KeyError: simplejpeg's header reader meets a colour space it has no name for (found
+        # by fuzzing: fuzz/seeds.py, FOUND)
         pass
     return None
 
