@@ -69,6 +69,14 @@ def jpegs() -> Iterator[tuple[str, bytes]]:
             ".jpg", bgr, [cv2.IMWRITE_JPEG_SAMPLING_FACTOR, sampling])[1].tobytes()
     yield "restart_interval_1", cv2.imencode(
         ".jpg", bgr, [cv2.IMWRITE_JPEG_RST_INTERVAL, 1])[1].tobytes()
+    # a restart interval per MCU row, on a picture tall enough for the decoder to start at
+    # one (every 64 rows of this 4:4:4 one, every 128 of the 4:2:0)
+    tall = np.concatenate([bgr] * 6)  # 64 x 288
+    for name, sampling, per_row in (("444", cv2.IMWRITE_JPEG_SAMPLING_FACTOR_444, 8),
+                                    ("420", cv2.IMWRITE_JPEG_SAMPLING_FACTOR_420, 4)):
+        yield f"restart_rows_tall_{name}", cv2.imencode(
+            ".jpg", tall, [cv2.IMWRITE_JPEG_SAMPLING_FACTOR, sampling,
+                           cv2.IMWRITE_JPEG_RST_INTERVAL, per_row])[1].tobytes()
     rgb = Image.fromarray(bgr[..., ::-1])
     for name, image, options in (("progressive", rgb, {"progressive": True}),
                                  ("cmyk", rgb.convert("CMYK"), {}),
@@ -204,6 +212,20 @@ FOUND: dict[str, list[tuple[str, str]]] = {
                "JCQuJyAiLCMcHCg3KSwwMTQ0NB8nOT04MjwuMzQy/9sAQwEJCQkMCwwYDQ0YMiEcITIyMjIyMjIyMjIy"
                "MjIyMjIyMjMyMjIyMjIyMjIyMjIyMjIyMjExMTExMTExMTExMTEx/8kAEQgAMABAAwEUAAIRAQMRAf/a"
                "AAwDAQACEQO/HLIC/0o=")],
+    # a JPEG cut inside its headers, with restart intervals of whole rows: the restart seek
+    # took the end of libjpeg's own fake end marker for the end of the headers (ASan; fixed
+    # before it shipped)
+    "jpeg_region": [("found_restart_seek_truncated_header",
+                     "QAA1AMAAwAD/2P/gABBKRklGAAH//////////////////////wAA/9sAQwACAQEBAQECAQEBAgICAgcKCgoK"
+                     "CgoKCgoKCgoKCgoKCgoKCgoKCgoKCgoKCgoKCgoKCgoKCgoKCgoKCgoKCgoKCv/AABEIASAAQAMBEQACEQED"
+                     "EQH/xAAfAAABBQEBAQEBAQAAAAAAAAAAAT0AAAAAAAABPQMEBQYHCAkKC//EALUQAAIBAwMCBAMFBQQEAAAB"
+                     "fQECAwAEEQUSITBBBhNRYQcmcRShCCNCscEVUtHwJDNicoIJChYXGBkaJSYnKCkqNDU2Nzg5OkNEf///////"
+                     "////////////////////////////////////////////////////////////////////RUZHSElKU1RVVldY"
+                     "WVpjZGVmZ2hpOXN0dXZ3eHl6g4SFhoeIiYqSk5QCBAQDBAcFBAQAAQJ3AAECAxEEBSExcWEHQQYSEwMEBQYH"
+                     "CAkKC//EALUQAAIBAwMCBAMFBQQEAAABfQECAwAEEQUSITBBBhNRYQcmcRShCCNCscEVUtHwJDNicoIJChYX"
+                     "GBkaJSYnKCkqNDU2Nzg5OkNEf///////////////////////////////////////////////////////////"
+                     "////////////////RUZHSElKU1RVVldYWVpjZGVmZ2hpOXN0dXZ3eHl6g4SFhoeIiYqSk5QCBAQDBAcFBAQA"
+                     "AQJ3AAECAxEEBSExcWEHQQYSE0EiMoEIUvAVYufq8vP09fb3+Pn6/90ABAAI/9oADAMBAAIRAxEA2Q==")],
 }
 
 

@@ -42,6 +42,18 @@ def _files() -> list[bytes]:
     return [p.read_bytes() for ds, name in SEQUENCES for p in _frames(ds, name)[::25]]
 
 
+#: Restart intervals of whole MCU rows (a 1280-wide picture), where a decode starts at the
+#: last group of eight intervals above the region: 4:2:0 one row (every 128 pixel rows),
+#: 4:4:4 one row (every 64), 4:2:2 two rows (every 128)
+RESTART_ROWS = (
+    [cv2.IMWRITE_JPEG_RST_INTERVAL, 80],
+    [cv2.IMWRITE_JPEG_SAMPLING_FACTOR, cv2.IMWRITE_JPEG_SAMPLING_FACTOR_444,
+     cv2.IMWRITE_JPEG_RST_INTERVAL, 160],
+    [cv2.IMWRITE_JPEG_SAMPLING_FACTOR, cv2.IMWRITE_JPEG_SAMPLING_FACTOR_422,
+     cv2.IMWRITE_JPEG_RST_INTERVAL, 160],
+)
+
+
 @pytest.fixture(scope="module")
 def jpegs() -> list[bytes]:
     files = _files()
@@ -49,7 +61,8 @@ def jpegs() -> list[bytes]:
     encoded = []
     for params in ([cv2.IMWRITE_JPEG_SAMPLING_FACTOR, cv2.IMWRITE_JPEG_SAMPLING_FACTOR_444],
                    [cv2.IMWRITE_JPEG_SAMPLING_FACTOR, cv2.IMWRITE_JPEG_SAMPLING_FACTOR_422],
-                   [cv2.IMWRITE_JPEG_RST_INTERVAL, 3], [cv2.IMWRITE_JPEG_QUALITY, 40]):
+                   [cv2.IMWRITE_JPEG_RST_INTERVAL, 3], [cv2.IMWRITE_JPEG_QUALITY, 40],
+                   *RESTART_ROWS):
         encoded.append(cv2.imencode(".jpg", image, params)[1].tobytes())
     encoded.append(cv2.imencode(".jpg", cv2.cvtColor(image, cv2.COLOR_BGR2GRAY))[1].tobytes())
     encoded.append(cv2.imencode(".jpg", image[:357, :611])[1].tobytes())  # not whole MCUs
@@ -82,6 +95,41 @@ def test_a_jpeg_region_has_the_whole_decodes_pixels(jpegs: list[bytes]) -> None:
             np.testing.assert_array_equal(got.whole(), whole)
             checked += 1
     assert checked >= 8 * len(jpegs)
+
+
+def test_restart_intervals_of_whole_rows_are_where_a_region_starts(jpegs: list[bytes]) -> None:
+    """A picture with a restart interval per MCU row (or two) is read from the last group of
+    eight intervals above the region (pixels checked by the test above: bit for bit); one
+    whose intervals do not start rows, or with none, is read from its top."""
+    from arcf.client.media import _jpegregion
+
+    image = decode_compressed(jpegs[0])
+    h, w = image.shape[:2]
+    assert (h, w) == (720, 1280)
+    starts = []
+    for params in RESTART_ROWS:
+        data = cv2.imencode(".jpg", image, params)[1].tobytes()
+        starts.append([_jpegregion.seek_row(data, top) for top in (0, 63, 64, 127, 128, 600)])
+    assert starts == [[0, 0, 0, 0, 128, 512], [0, 0, 64, 64, 128, 576],
+                      [0, 0, 0, 0, 128, 512]]
+    block = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_RST_INTERVAL, 3])[1].tobytes()
+    assert _jpegregion.seek_row(block, 600) == 0  # intervals of 3 MCUs: not whole rows
+    assert _jpegregion.seek_row(jpegs[0], 600) == 0  # no restart markers
+
+
+def test_a_damaged_restart_marker_is_not_where_a_region_starts(jpegs: list[bytes]) -> None:
+    """A restart marker out of sequence before the region: no seek, and the decode that reads
+    from the top finds the damage (the whole decode decides, as for any damage)."""
+    from arcf.client.media import _jpegregion
+
+    image = decode_compressed(jpegs[0])
+    data = bytearray(cv2.imencode(".jpg", image, RESTART_ROWS[0])[1].tobytes())
+    markers = [i for i in range(len(data) - 1)
+               if data[i] == 0xFF and 0xD0 <= data[i + 1] <= 0xD7]
+    assert len(markers) == 44  # 45 MCU rows, one interval each
+    data[markers[5] + 1] = 0xD0 + (data[markers[5] + 1] - 0xD0 + 3) % 8  # RST5 -> RST0
+    assert _jpegregion.seek_row(bytes(data), 600) == 0
+    assert decode_jpeg_region(bytes(data), (600, 100, 700, 400)) is None
 
 
 def test_what_a_region_cannot_promise_is_decoded_whole(jpegs: list[bytes]) -> None:
