@@ -3,10 +3,9 @@
  * jpeg_skip_scanlines skips the rows above the rectangle (their entropy-coded data is read, no
  * IDCT, upsampling or colour conversion is done), jpeg_crop_scanline limits every decoded row
  * to the iMCU columns covering it, and decompression stops after its last row: a window
- * around a small target costs a fraction of the whole picture. A picture whose restart
- * intervals start whole MCU rows is not even read above the rectangle: decoding starts at the
- * last group of eight intervals above it (restart_seek), where the entropy coder starts
- * afresh, so that the rows above cost nothing at all. The pixels land where the
+ * around a small target costs a fraction of the whole picture. A picture with restart
+ * intervals that tile its MCU grid is not even read outside the intervals that cover the
+ * rectangle (restart_seek): the rows above and the columns beside it cost nothing. The pixels land where the
  * whole picture's would, in a caller's frame-sized buffer (client/media/images.py says when they
  * equal the whole decode's; tests/service/test_region_decode.py checks it bit for bit).
  *
@@ -21,8 +20,9 @@
  *
  * header(data) -> (width, height, components, colour space code, progressive)
  *
- * seek_row(data, top) -> the first row decode_region reads for a rectangle from row `top`
- *   down (a restart interval's start; 0 when the picture offers none to start at)
+ * seek(data, top, left, bottom, right) -> (row, column) of the first pixel decode_region
+ *   reads for that rectangle (where the restart intervals covering it start), or None when
+ *   the picture offers no seek (it is read from its top)
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -84,70 +84,106 @@ static size_t sof_height_at(const unsigned char *data, size_t end) {
     return 0;
 }
 
-/* Where the entropy-coded data after the `count`-th restart marker of the scan starting at
- * `start` begins, or 0 (fewer markers, another marker first, or one out of sequence). */
-static size_t after_restart(const unsigned char *data, size_t size, size_t start,
-                            unsigned long count) {
-    unsigned long seen = 0;
-    size_t i = start;
-    while (i + 1 < size) {
-        const unsigned char *hit = memchr(data + i, 0xFF, size - i - 1);
-        if (hit == NULL) return 0;
-        size_t j = (size_t)(hit - data);
-        unsigned char next = data[j + 1];
-        if (next == 0x00 || next == 0xFF) { /* a stuffed 0xFF, or fill */
-            i = j + 1 + (next == 0x00);
-            continue;
-        }
-        if (next < 0xD0 || next > 0xD7 || next != 0xD0 + (seen & 7)) return 0;
-        if (++seen == count) return j + 2;
-        i = j + 2;
-    }
-    return 0;
-}
-
 /* Restart seek. A baseline scan's restart markers reset the entropy coder and the DC
- * predictions, so the data after one decodes on its own. When every interval covers whole
- * MCU rows, a picture made of the headers (its height less the rows skipped) and the data
- * from the start of an interval on is the picture's rows from there down, pixel for pixel
- * but for the first row's chroma upsampling context (one row; the caller trusts pixels 8
- * rows inside the decoded rectangle). The interval chosen is a multiple of eight, whose
- * marker is the RST0 that libjpeg expects first: the stream needs no renumbering, and at
- * most eight intervals above the rectangle are decoded (and skipped).
+ * predictions, so each interval's data decodes on its own. When the intervals tile the MCU
+ * grid (an interval is a whole number of MCU rows, or a row a whole number of intervals),
+ * the intervals that cover the rectangle, each followed by a restart marker numbered anew,
+ * under the headers with the covered width and height, are a picture of their own: the
+ * whole picture's pixels there, bit for bit but for the upsampling context at its edges
+ * (one pixel; the caller trusts pixels 8 inside the decoded rectangle's edges). Neither the
+ * rows above the rectangle nor the columns beside it are read.
  *
- * After jpeg_read_header on `data`: the first row of the made stream (0: no seek, the
- * picture is decoded from its top) and the made stream in err->owned, its size in *made. */
+ * After jpeg_read_header on `data`: 1 with the made stream in err->owned (its size in
+ * *made) and its place in the picture in *row, *col; 0 when the picture offers no seek
+ * that saves anything (no restart markers, intervals that do not tile the grid, a marker
+ * out of sequence: the caller decodes from the top). */
+typedef struct {
+    size_t top, left, bottom, right; /* pixel rectangle asked for, clamped */
+} want;
+
 static int restart_seek(j_decompress_ptr cinfo, struct region_error *err,
-                        const unsigned char *data, size_t size, int top, size_t *made) {
+                        const unsigned char *data, size_t size, want w, size_t *made,
+                        size_t *row, size_t *col) {
     if (cinfo->restart_interval == 0 || cinfo->progressive_mode ||
         jpeg_has_multiple_scans(cinfo) || cinfo->comps_in_scan != cinfo->num_components)
         return 0;
     int single = cinfo->num_components == 1;
     size_t mcu_w = single ? 8 : 8 * (size_t)cinfo->max_h_samp_factor;
     size_t mcu_h = single ? 8 : 8 * (size_t)cinfo->max_v_samp_factor;
-    size_t per_row = (cinfo->image_width + mcu_w - 1) / mcu_w;
-    if (per_row == 0 || cinfo->restart_interval % per_row != 0) return 0;
-    size_t group = 8 * (cinfo->restart_interval / per_row) * mcu_h; /* rows of 8 intervals */
-    size_t groups = (size_t)top / group;
-    if (groups == 0) return 0;
+    size_t width = cinfo->image_width, height = cinfo->image_height;
+    size_t per_row = (width + mcu_w - 1) / mcu_w, rows = (height + mcu_h - 1) / mcu_h;
+    size_t interval = cinfo->restart_interval;
+    /* the grid of intervals: `span` MCU rows by `across` MCUs each, `wide` to a row */
+    size_t span, across;
+    if (interval >= per_row && interval % per_row == 0) {
+        span = interval / per_row;
+        across = per_row;
+    } else if (interval < per_row && per_row % interval == 0) {
+        span = 1;
+        across = interval;
+    } else {
+        return 0;
+    }
+    size_t wide = per_row / across, tall = (rows + span - 1) / span;
+    size_t g0 = w.top / mcu_h / span, g1 = ((w.bottom + mcu_h - 1) / mcu_h + span - 1) / span;
+    size_t j0 = w.left / mcu_w / across, j1 = ((w.right + mcu_w - 1) / mcu_w + across - 1) / across;
+    if (g1 > tall) g1 = tall;
+    if (j1 > wide) j1 = wide;
+    if (g0 >= g1 || j0 >= j1 || (g0 == 0 && j0 == 0 && j1 == wide)) return 0;
     /* the scan's data, where the header reading stopped: in `data` only if libjpeg did not
      * run out of it (its memory source then feeds a fake end marker of its own) */
     uintptr_t next = (uintptr_t)cinfo->src->next_input_byte, begin = (uintptr_t)data;
     if (next < begin || next - begin > size) return 0;
     size_t start = (size_t)(next - begin);
-    size_t from = after_restart(data, size, start, 8 * groups);
     size_t sof = sof_height_at(data, start);
-    size_t first = groups * group;
-    if (from == 0 || sof == 0 || first >= cinfo->image_height) return 0;
-    err->owned = malloc(start + (size - from));
-    if (err->owned == NULL) return 0;
-    memcpy(err->owned, data, start);
-    memcpy(err->owned + start, data + from, size - from);
-    size_t rows = cinfo->image_height - first;
-    err->owned[sof] = (unsigned char)(rows >> 8);
-    err->owned[sof + 1] = (unsigned char)(rows & 0xFF);
-    *made = start + (size - from);
-    return (int)first;
+    if (sof == 0) return 0;
+    size_t count = (g1 - g0) * (j1 - j0);
+    unsigned char *out = malloc(start + size + 2 * count + 2);
+    if (out == NULL) return 0;
+    err->owned = out;
+    memcpy(out, data, start);
+    size_t at = start, copied = 0, last = (g1 - 1) * wide + j1 - 1;
+    size_t i = start, from = start; /* the scan, and where interval n's data begins */
+    for (size_t n = 0; n <= last; n++) {
+        size_t end; /* interval n's data ends at the marker after it */
+        for (;;) {
+            const unsigned char *hit = i + 1 < size ? memchr(data + i, 0xFF, size - i - 1) : NULL;
+            if (hit == NULL) return 0;
+            size_t j = (size_t)(hit - data);
+            unsigned char marker = data[j + 1];
+            if (marker == 0x00 || marker == 0xFF) { /* a stuffed 0xFF, or fill */
+                i = j + 1 + (marker == 0x00);
+                continue;
+            }
+            int final = marker == 0xD9 && n == last && n + 1 == tall * wide;
+            if (!final && marker != 0xD0 + (n & 7)) return 0; /* out of sequence, or another */
+            end = j;
+            i = j + 2;
+            break;
+        }
+        size_t g = n / wide, j = n % wide;
+        if (g >= g0 && j >= j0 && j < j1) {
+            memcpy(out + at, data + from, end - from);
+            at += end - from;
+            if (++copied < count) { /* numbered anew: the made picture's own sequence */
+                out[at++] = 0xFF;
+                out[at++] = (unsigned char)(0xD0 + ((copied - 1) & 7));
+            }
+        }
+        from = i;
+    }
+    out[at++] = 0xFF;
+    out[at++] = 0xD9;
+    *row = g0 * span * mcu_h;
+    *col = j0 * across * mcu_w;
+    size_t rows_made = (g1 * span * mcu_h < height ? g1 * span * mcu_h : height) - *row;
+    size_t cols_made = (j1 * across * mcu_w < width ? j1 * across * mcu_w : width) - *col;
+    out[sof] = (unsigned char)(rows_made >> 8);
+    out[sof + 1] = (unsigned char)(rows_made & 0xFF);
+    out[sof + 2] = (unsigned char)(cols_made >> 8);
+    out[sof + 3] = (unsigned char)(cols_made & 0xFF);
+    *made = at;
+    return 1;
 }
 
 typedef struct {
@@ -213,29 +249,30 @@ static int decode(struct jpeg_decompress_struct *cinfo, struct region_error *err
         res->failure = "the rectangle lies outside the picture";
         return -1;
     }
-    /* rows above the rectangle that need not be read at all (restart intervals), and the
-     * picture from there down in place of the whole one */
-    size_t made = 0;
-    int shift = restart_seek(cinfo, err, data, size, res->top, &made);
-    if (shift > 0) {
+    /* rows above the rectangle and columns beside it that need not be read at all (restart
+     * intervals): the picture made of the intervals that cover it, in place of the whole */
+    size_t made = 0, row = 0, col = 0;
+    want asked = {(size_t)res->top, (size_t)res->left, (size_t)res->bottom, (size_t)res->right};
+    if (restart_seek(cinfo, err, data, size, asked, &made, &row, &col)) {
         jpeg_abort_decompress(cinfo);
         jpeg_mem_src(cinfo, err->owned, (unsigned long)made);
         jpeg_read_header(cinfo, TRUE);
         cinfo->out_color_space = channels == 3 ? JCS_EXT_BGR : JCS_GRAYSCALE;
         cinfo->dct_method = JDCT_ISLOW;
         cinfo->do_fancy_upsampling = TRUE;
-        if (cinfo->image_width != width || cinfo->image_height != height - (size_t)shift) {
+        if (cinfo->image_width + col > width || cinfo->image_height + row > height) {
             jpeg_destroy_decompress(cinfo);
             free(err->owned);
             err->owned = NULL;
-            res->failure = "the restart seek changed the picture's width";
+            res->failure = "the restart seek made a picture that does not fit";
             return -1;
         }
-        base += (size_t)shift * width * (size_t)channels;
+        base += (row * width + col) * (size_t)channels;
     }
-    int top = res->top - shift, bottom = res->bottom - shift;
+    int top = res->top - (int)row, bottom = res->bottom - (int)row;
+    int left = res->left - (int)col, right = res->right - (int)col;
     jpeg_start_decompress(cinfo);
-    JDIMENSION xoffset = (JDIMENSION)res->left, cols = (JDIMENSION)(res->right - res->left);
+    JDIMENSION xoffset = (JDIMENSION)(left > 0 ? left : 0), cols = (JDIMENSION)(right - left);
     if (cols < cinfo->output_width) jpeg_crop_scanline(cinfo, &xoffset, &cols);
     if (top > 0) jpeg_skip_scanlines(cinfo, (JDIMENSION)top);
     int first = (int)cinfo->output_scanline;
@@ -252,9 +289,9 @@ static int decode(struct jpeg_decompress_struct *cinfo, struct region_error *err
         res->failure = err->message;
         return -1;
     }
-    res->top = first + shift;
-    res->left = (int)xoffset;
-    res->right = (int)(xoffset + cols);
+    res->top = first + (int)row;
+    res->left = (int)(col + xoffset);
+    res->right = (int)(col + xoffset + cols);
     return 0;
 }
 
@@ -304,10 +341,10 @@ static PyObject *header(PyObject *self, PyObject *args) {
     return res;
 }
 
-static PyObject *seek_row(PyObject *self, PyObject *args) {
+static PyObject *seek(PyObject *self, PyObject *args) {
     Py_buffer data;
-    int top;
-    if (!PyArg_ParseTuple(args, "y*i", &data, &top)) return NULL;
+    int top, left, bottom, right;
+    if (!PyArg_ParseTuple(args, "y*iiii", &data, &top, &left, &bottom, &right)) return NULL;
     struct jpeg_decompress_struct cinfo;
     struct region_error err;
     route_errors(&cinfo, &err);
@@ -321,21 +358,24 @@ static PyObject *seek_row(PyObject *self, PyObject *args) {
     jpeg_create_decompress(&cinfo);
     jpeg_mem_src(&cinfo, (const unsigned char *)data.buf, (unsigned long)data.len);
     jpeg_read_header(&cinfo, TRUE);
-    size_t made = 0;
-    int row = top > 0 && !cinfo.arith_code
-                  ? restart_seek(&cinfo, &err, (const unsigned char *)data.buf,
-                                 (size_t)data.len, top, &made)
-                  : 0;
+    size_t made = 0, row = 0, col = 0;
+    int w = (int)cinfo.image_width, h = (int)cinfo.image_height;
+    want asked = {(size_t)(top < 0 ? 0 : top), (size_t)(left < 0 ? 0 : left),
+                  (size_t)(bottom > h ? h : bottom), (size_t)(right > w ? w : right)};
+    int found = top < bottom && left < right && !cinfo.arith_code &&
+                restart_seek(&cinfo, &err, (const unsigned char *)data.buf, (size_t)data.len,
+                             asked, &made, &row, &col);
     jpeg_destroy_decompress(&cinfo);
     free(err.owned);
     PyBuffer_Release(&data);
-    return PyLong_FromLong(row);
+    if (!found) Py_RETURN_NONE;
+    return Py_BuildValue("(nn)", (Py_ssize_t)row, (Py_ssize_t)col);
 }
 
 static PyMethodDef methods[] = {
-    {"seek_row", seek_row, METH_VARARGS,
-     "seek_row(data, top) -> the row a decode of the rows from `top` down starts at (restart "
-     "intervals; 0: the picture's top)"},
+    {"seek", seek, METH_VARARGS,
+     "seek(data, top, left, bottom, right) -> (row, column) where decode_region starts reading "
+     "for that rectangle (restart intervals), or None: from the picture's top"},
     {"decode_region", decode_region, METH_VARARGS,
      "decode_region(data, out, top, left, bottom, right) -> (top, left, bottom, right)"},
     {"header", header, METH_VARARGS,

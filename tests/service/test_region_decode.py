@@ -19,6 +19,7 @@ import simplejpeg
 
 from arcf.client.media import images as decoding
 from arcf.client.media.convert import converts_by_region, picture_bgr, picture_bgr_region
+from arcf.client.media.encodings import encode_image
 from arcf.client.media.images import decode_compressed, decode_jpeg_region
 from arcf.eval.datasets import load_dataset
 from arcf.loadtools.video import encode_video
@@ -42,13 +43,15 @@ def _files() -> list[bytes]:
     return [p.read_bytes() for ds, name in SEQUENCES for p in _frames(ds, name)[::25]]
 
 
-#: Restart intervals of whole MCU rows (a 1280-wide picture), where a decode starts at the
-#: last group of eight intervals above the region: 4:2:0 one row (every 128 pixel rows),
-#: 4:4:4 one row (every 64), 4:2:2 two rows (every 128)
-RESTART_ROWS = (
+#: Restart intervals that tile a 1280-wide picture's MCU grid, where a decode reads only the
+#: intervals covering the region: 4:2:0 a row or 8 MCUs (as the SDK writes it) or 1 MCU;
+#: 4:4:4 10 MCUs; 4:2:2 two rows
+RESTART = (
     [cv2.IMWRITE_JPEG_RST_INTERVAL, 80],
+    [cv2.IMWRITE_JPEG_RST_INTERVAL, 8],
+    [cv2.IMWRITE_JPEG_RST_INTERVAL, 1],
     [cv2.IMWRITE_JPEG_SAMPLING_FACTOR, cv2.IMWRITE_JPEG_SAMPLING_FACTOR_444,
-     cv2.IMWRITE_JPEG_RST_INTERVAL, 160],
+     cv2.IMWRITE_JPEG_RST_INTERVAL, 10],
     [cv2.IMWRITE_JPEG_SAMPLING_FACTOR, cv2.IMWRITE_JPEG_SAMPLING_FACTOR_422,
      cv2.IMWRITE_JPEG_RST_INTERVAL, 160],
 )
@@ -62,9 +65,12 @@ def jpegs() -> list[bytes]:
     for params in ([cv2.IMWRITE_JPEG_SAMPLING_FACTOR, cv2.IMWRITE_JPEG_SAMPLING_FACTOR_444],
                    [cv2.IMWRITE_JPEG_SAMPLING_FACTOR, cv2.IMWRITE_JPEG_SAMPLING_FACTOR_422],
                    [cv2.IMWRITE_JPEG_RST_INTERVAL, 3], [cv2.IMWRITE_JPEG_QUALITY, 40],
-                   *RESTART_ROWS):
+                   *RESTART):
         encoded.append(cv2.imencode(".jpg", image, params)[1].tobytes())
-    encoded.append(cv2.imencode(".jpg", cv2.cvtColor(image, cv2.COLOR_BGR2GRAY))[1].tobytes())
+    grey = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    encoded.append(cv2.imencode(".jpg", grey)[1].tobytes())
+    encoded.append(cv2.imencode(".jpg", grey, [cv2.IMWRITE_JPEG_RST_INTERVAL, 20])[1].tobytes())
+    encoded.append(encode_image(image[:357, :611], "jpeg"))  # the SDK's, 13-MCU intervals
     encoded.append(cv2.imencode(".jpg", image[:357, :611])[1].tobytes())  # not whole MCUs
     return files + encoded
 
@@ -97,24 +103,28 @@ def test_a_jpeg_region_has_the_whole_decodes_pixels(jpegs: list[bytes]) -> None:
     assert checked >= 8 * len(jpegs)
 
 
-def test_restart_intervals_of_whole_rows_are_where_a_region_starts(jpegs: list[bytes]) -> None:
-    """A picture with a restart interval per MCU row (or two) is read from the last group of
-    eight intervals above the region (pixels checked by the test above: bit for bit); one
-    whose intervals do not start rows, or with none, is read from its top."""
+def test_a_region_is_read_from_the_restart_intervals_that_cover_it(jpegs: list[bytes]) -> None:
+    """Restart intervals that tile the MCU grid: only the intervals covering the region are
+    read (pixels checked by the test above, bit for bit), from the first of them; intervals
+    that do not tile it, no markers, or a region that starts at the top-left over the whole
+    width: read from the picture's top."""
     from arcf.client.media import _jpegregion
 
     image = decode_compressed(jpegs[0])
-    h, w = image.shape[:2]
-    assert (h, w) == (720, 1280)
-    starts = []
-    for params in RESTART_ROWS:
-        data = cv2.imencode(".jpg", image, params)[1].tobytes()
-        starts.append([_jpegregion.seek_row(data, top) for top in (0, 63, 64, 127, 128, 600)])
-    assert starts == [[0, 0, 0, 0, 128, 512], [0, 0, 64, 64, 128, 576],
-                      [0, 0, 0, 0, 128, 512]]
+    assert image.shape[:2] == (720, 1280)
+    region = (300, 300, 340, 400)
+    starts = [_jpegregion.seek(cv2.imencode(".jpg", image, params)[1].tobytes(), *region)
+              for params in RESTART]
+    # 4:2:0 (16-pixel MCUs): a row; 8 MCUs (128 px); 1 MCU; 4:4:4 (8 px): 10 MCUs;
+    # 4:2:2 (16 x 8): two rows
+    assert starts == [(288, 0), (288, 256), (288, 288), (296, 240), (288, 0)]
+    sent = encode_image(image, "jpeg")  # the SDK's: 8-MCU intervals
+    assert _jpegregion.seek(sent, *region) == (288, 256)
+    assert _jpegregion.seek(sent, 0, 0, 100, 1280) is None  # nothing to leave out
+    assert _jpegregion.seek(sent, 0, 200, 100, 400) == (0, 128)
     block = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_RST_INTERVAL, 3])[1].tobytes()
-    assert _jpegregion.seek_row(block, 600) == 0  # intervals of 3 MCUs: not whole rows
-    assert _jpegregion.seek_row(jpegs[0], 600) == 0  # no restart markers
+    assert _jpegregion.seek(block, *region) is None  # 3 MCUs do not tile a row of 80
+    assert _jpegregion.seek(jpegs[0], *region) is None  # no restart markers
 
 
 def test_a_damaged_restart_marker_is_not_where_a_region_starts(jpegs: list[bytes]) -> None:
@@ -122,13 +132,13 @@ def test_a_damaged_restart_marker_is_not_where_a_region_starts(jpegs: list[bytes
     from the top finds the damage (the whole decode decides, as for any damage)."""
     from arcf.client.media import _jpegregion
 
-    image = decode_compressed(jpegs[0])
-    data = bytearray(cv2.imencode(".jpg", image, RESTART_ROWS[0])[1].tobytes())
+    data = bytearray(encode_image(decode_compressed(jpegs[0]), "jpeg"))
     markers = [i for i in range(len(data) - 1)
                if data[i] == 0xFF and 0xD0 <= data[i + 1] <= 0xD7]
-    assert len(markers) == 44  # 45 MCU rows, one interval each
-    data[markers[5] + 1] = 0xD0 + (data[markers[5] + 1] - 0xD0 + 3) % 8  # RST5 -> RST0
-    assert _jpegregion.seek_row(bytes(data), 600) == 0
+    assert len(markers) == 45 * 10 - 1  # 45 MCU rows of 10 intervals
+    assert [data[i + 1] - 0xD0 for i in markers[:10]] == [0, 1, 2, 3, 4, 5, 6, 7, 0, 1]
+    data[markers[5] + 1] = 0xD0  # RST5 -> RST0
+    assert _jpegregion.seek(bytes(data), 600, 100, 700, 400) is None
     assert decode_jpeg_region(bytes(data), (600, 100, 700, 400)) is None
 
 
