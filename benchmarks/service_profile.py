@@ -17,6 +17,7 @@ process (decode + track, one thread). Per frame, in CPU milliseconds:
 
     python benchmarks/service_profile.py            # arcf-h on wakeboard7, JPEG and H.264
     python benchmarks/service_profile.py --preset arcf-hc --sequence boat1 --encodings jpeg
+    python benchmarks/service_profile.py --encodings jpeg,jpeg-sdk   # restart intervals
 
 The machine should be otherwise idle: the generator (this process) runs beside the service.
 """
@@ -45,12 +46,13 @@ def library_alone(clip: Any, preset: str, frames: int, pace_s: float = 0.0) -> d
     import numpy as np
 
     import arcf
+    from arcf.client.media.encodings import codec_of
     from arcf.client.media.images import decode_compressed
-    from arcf.client.media.video import StreamDecoder
 
     cv2.setNumThreads(1)
     tracker = arcf.create_tracker(preset)
-    decoder = StreamDecoder(clip.encoding) if clip.encoding != "jpeg" else None
+    codec = codec_of(clip.encoding)
+    decoder = codec.stream_decoder() if codec.is_video else None
     decode_s = track_s = 0.0
     n = 0
     for i in range(frames):
@@ -159,7 +161,8 @@ def main(argv: list[str] | None = None) -> int:
     columns: dict[str, dict[str, float]] = {}
     alone: dict[str, dict[str, float]] = {}
     for encoding in [e for e in args.encodings.split(",") if e]:
-        clip = jpeg if encoding == "jpeg" else jpeg.as_video(encoding)
+        clip = (jpeg if encoding == "jpeg" else jpeg.as_sent() if encoding == "jpeg-sdk"
+                else jpeg.as_video(encoding))
         n = min(args.frames, 3 * len(clip))
         alone[encoding] = library_alone(clip, args.preset, n)
         paced = library_alone(clip, args.preset, n, 1 / args.fps)

@@ -33,8 +33,8 @@ class Clip:
     #: ground truth of the sequence's frames, in publication order (frame i: row i mod len);
     #: None for a forth-and-back clip, which is not scored
     groundtruth: np.ndarray | None = None
-    #: the frames' wire encoding: ``jpeg`` (the datasets' files), or ``h264`` / ``h265``
-    #: access units (:meth:`as_video`)
+    #: the frames' wire encoding: ``jpeg`` (the datasets' files, or as the SDK sends them:
+    #: :meth:`as_sent`), or ``h264`` / ``h265`` access units (:meth:`as_video`)
     encoding: str = "jpeg"
 
     @classmethod
@@ -52,6 +52,16 @@ class Clip:
 
     def __len__(self) -> int:
         return len(self.frames)
+
+    def as_sent(self, quality: int = 90) -> Clip:
+        """The same clip as the client SDK sends pictures (``encode_image``): JPEG at
+        ``quality`` with restart intervals that let a worker decode only around the target
+        (the datasets' own files have none)."""
+        from arcf.client.media.encodings import encode_image
+        from arcf.client.media.images import decode_compressed
+
+        return replace(self, frames=tuple(encode_image(decode_compressed(f), "jpeg", quality)
+                                          for f in self.frames))
 
     def as_video(self, codec: str = "h264", fps: int = 30) -> Clip:
         """The same clip as a drone camera's video: one access unit per frame, a keyframe

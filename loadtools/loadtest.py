@@ -195,9 +195,11 @@ def run_load(
     track exactly the same frames whatever their speed: a target's size, and with it the cost
     of a frame, changes along a sequence. With ``in_flight`` > 0 each stream is a closed loop,
     so several such streams per worker keep every worker busy without a single drop, which is
-    how the service's saturation throughput is measured. ``encoding`` ``h264`` / ``h265``
-    sends each clip as a camera's video (``Clip.as_video``, at ``fps``) instead of its JPEG
-    files; the library reference then is not run (``reference_seconds`` must be 0).
+    how the service's saturation throughput is measured. ``encoding`` ``jpeg-sdk`` sends each
+    clip's pictures as the client SDK encodes them (``Clip.as_sent``: restart intervals a
+    worker decodes around the target only); ``h264`` / ``h265`` as a camera's video
+    (``Clip.as_video``, at ``fps``) instead of its JPEG files, and the library reference then
+    is not run (``reference_seconds`` must be 0).
 
     The library's own throughput on the same frames is measured for ``reference_seconds`` (0
     skips it), half before the load and half after: one process, and ``reference_processes``
@@ -209,8 +211,9 @@ def run_load(
     for seq in sequences[: min(streams, len(sequences))]:
         n = min(len(seq), max_frames) if max_frames else len(seq)
         clip = Clip.of(seq, limit=min(n, window) if window else n)
-        clips.append(clip if encoding == "jpeg" else clip.as_video(encoding, int(fps or 30)))
-    if encoding != "jpeg" and reference_seconds > 0:
+        clips.append(clip if encoding == "jpeg" else clip.as_sent() if encoding == "jpeg-sdk"
+                     else clip.as_video(encoding, int(fps or 30)))
+    if encoding not in ("jpeg", "jpeg-sdk") and reference_seconds > 0:
         raise ValueError("the library reference decodes JPEG frames: reference_seconds=0 "
                          "for video")
     cache = cache if cache is not None else {}

@@ -419,3 +419,19 @@ def test_a_clip_as_video_is_one_access_unit_per_frame_starting_on_a_keyframe(
     assert any(k in KEYFRAME_TYPES["h264"] for k, _ in nal_units(video.frames[0], "h264"))
     pictures = decode_video(video.frames)
     assert len(pictures) == 12 and pictures[0].shape == (720, 1280, 3)
+
+
+def test_a_clip_as_sent_carries_the_sdks_restart_intervals(wakeboard7) -> None:  # type: ignore[no-untyped-def]
+    """``Clip.as_sent``: the same pictures (the SDK's JPEG, quality 90), whose regions a
+    worker decodes from the restart intervals around them."""
+    from arcf.client.media import _jpegregion
+    from arcf.client.media.images import decode_compressed
+
+    clip = Clip.of(wakeboard7, limit=3)
+    sent = clip.as_sent()
+    assert sent.encoding == "jpeg" and len(sent) == 3 and sent.box == clip.box
+    for original, data in zip(clip.frames, sent.frames, strict=True):
+        assert data != original
+        a, b = decode_compressed(original), decode_compressed(data)
+        assert a.shape == b.shape and np.abs(a.astype(int) - b).mean() < 3
+        assert _jpegregion.seek(data, 300, 300, 340, 400) == (288, 256)
