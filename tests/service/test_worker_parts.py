@@ -330,4 +330,4 @@ def test_a_session_over_its_budget_is_returned_to_end(wakeboard7) -> None:  # ty
     ends = tracking.run(stream, Picture(0, 1, 1, 0.0, image))
     assert [(e.session.session_id, e.code) for e in ends] == [
         ("costly", ErrorCode.LIMIT_EXCEEDED)]
-    assert "above the 0.001 ms budget of a session (session_budget_ms)" in ends[0].why
+    assert "budget of a session (session_budget_ms)" in ends[0].why
