@@ -477,6 +477,7 @@ TUNABLE: Mapping[str, Tunable] = MappingProxyType({
     "state.update_policy": Tunable(str, choices=("always", "tracking")),
     "state.reacquire": Tunable(bool),
     "state.probes": Tunable(int, 1, 16),
+    "state.search_bands": Tunable(int, 1, 64),
     "state.reacquire_above": Tunable(float, 0.0, 1.0),
     "state.reacquire_margin": Tunable(float, 0.0, 1.0),
 })

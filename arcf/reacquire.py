@@ -4,23 +4,31 @@ A correlation filter only looks inside its search window, so once the target has
 window (an occlusion long enough for the camera or the target to move, a fast pan, an
 out-of-view exit) no amount of waiting brings it back. While the track is not ``tracking``
 (:mod:`arcf.state`) the tracker learns nothing, so its filter is still the one that knew the
-target. Once the track is ``lost``, every frame:
+target. From the frame after the one that lost the track, every frame:
 
 1. **Propose** (:class:`TargetTemplate`): the grey look of the target, kept from a trusted
-   frame well before the loss, is matched over the **whole frame** at a coarse resolution
-   (normalised cross-correlation, OpenCV's ``matchTemplate``); the best few places, apart
-   from each other, are candidates. One pass over a frame shrunk so that the template is
-   about ``TEMPLATE_SIDE`` pixels, and the frame at most ``MAX_SEARCH_PIXELS``: a bounded
-   cost whatever the frame's size, and no place of the frame is out of reach.
-2. **Verify** (the tracker's ``_probe``): at each candidate, and where the target was last
-   tracked, one window at the track's scale is correlated with the kept filter and its
-   strength read against the references of the frames before the loss
-   (:meth:`arcf.state.TrackMonitor.probe`). A template is easily fooled by anything of the
-   same shape and brightness; the filter, learnt on the target and its background, is not.
+   frame well before the loss, is matched over one **band** of the frame at a coarse
+   resolution (normalised cross-correlation, OpenCV's ``matchTemplate``), the next band on
+   the next frame: ``search_bands`` frames sweep the whole frame, and no place of it is out of
+   reach. The frame is shrunk so that the template is about ``TEMPLATE_SIDE`` pixels, and the
+   frame at most ``MAX_SEARCH_PIXELS``: a bounded cost whatever the frame's size. The band's
+   best places are verified on the next frame.
+2. **Verify** (the tracker's ``_probe``): at most ``probes`` windows, at the track's scale, are
+   correlated with the kept filter and their strength read against the references of the
+   frames before the loss (:meth:`arcf.state.TrackMonitor.probe`): the place seen strong on
+   the frame before (to confirm it), a promising one seen off its centre (now centred on the
+   filter's peak), the band's best, where the target was last tracked. A template is easily
+   fooled by anything of the same shape and brightness; the filter, learnt on the target and
+   its background, is not.
 
 A place wins when its strength reaches ``reacquire_above`` on two frames in a row, the box's
 own is below ``coast_below`` and the place beats it by ``reacquire_margin``: the box jumps
 there, the track is ``tracking`` again and the result says ``reacquired``.
+
+Both steps are budgeted per frame (a band, ``probes`` windows), and every pixel they read is
+known before the frame arrives, so a lost frame costs about what a tracked one does (it does
+not learn), and a caller that decodes frames by region (the service) decodes only the band
+and the windows (``ARCFTracker.read_region``).
 """
 
 from __future__ import annotations
@@ -102,17 +110,42 @@ class TargetTemplate:
         score = float(cv2.matchTemplate(box, self.pixels, cv2.TM_CCOEFF_NORMED)[0, 0])
         return score if math.isfinite(score) else 0.0
 
-    def candidates(self, image: np.ndarray, count: int) -> list[tuple[float, Point]]:
-        """The ``count`` best matches over the whole frame, best first, as (score, centre),
-        each at least a template away from the better ones (non-maximum suppression)."""
+    def _factor(self) -> int:
         k = int(self.shrink)
         if k != self.shrink:
             raise ValueError("a searching template is shrunk by a whole factor (cut(search=True))")
+        return k
+
+    def band(self, image_hw: tuple[int, int], index: int, bands: int) -> tuple[int, int]:
+        """Band ``index`` of ``bands`` (top to bottom) as source rows ``[top, bottom)``: the
+        bands' template placements split the frame's evenly, and each band holds the whole
+        template at each of its placements, so the bands together match every placement of
+        the whole frame once. ``(0, 0)`` for a frame smaller than the template."""
+        k = self._factor()
+        th = self.pixels.shape[0]
+        placements = image_hw[0] // k - th + 1  # rows of the shrunk frame's score map
+        if placements <= 0 or image_hw[1] // k < self.pixels.shape[1]:
+            return 0, 0
+        index %= bands
+        first = placements * index // bands
+        last = placements * (index + 1) // bands  # exclusive
+        if last <= first:
+            return 0, 0
+        return first * k, (last + th - 1) * k
+
+    def candidates(self, image: np.ndarray, count: int,
+                   rows: tuple[int, int] | None = None) -> list[tuple[float, Point]]:
+        """The ``count`` best matches in the source rows ``rows`` (a :meth:`band`; default the
+        whole frame), best first, as (score, centre), each at least a template away from the
+        better ones (non-maximum suppression). Only those rows of ``image`` are read."""
+        k = self._factor()
         # the frame cut to whole k x k blocks: OpenCV's area resize then averages blocks
-        rows, cols = (image.shape[0] // k) * k, (image.shape[1] // k) * k
-        if rows < k or cols < k:
+        top, bottom = rows if rows is not None else (0, image.shape[0])
+        top, bottom = top // k * k, min(bottom, image.shape[0]) // k * k
+        cols = (image.shape[1] // k) * k
+        if bottom - top < k or cols < k:
             return []
-        frame = cv2.resize(grey(image[:rows, :cols]), (cols // k, rows // k),
+        frame = cv2.resize(grey(image[top:bottom, :cols]), (cols // k, (bottom - top) // k),
                            interpolation=cv2.INTER_AREA)
         th, tw = self.pixels.shape
         if frame.shape[0] < th or frame.shape[1] < tw:
@@ -121,13 +154,12 @@ class TargetTemplate:
         scores = np.nan_to_num(scores, nan=-1.0)
         out: list[tuple[float, Point]] = []
         for _ in range(count):
-            k = int(np.argmax(scores))
-            i, j = divmod(k, scores.shape[1])
+            i, j = divmod(int(np.argmax(scores)), scores.shape[1])
             score = float(scores[i, j])
             if not math.isfinite(score) or score <= -1.0:
                 break
             # centre of the match in the source frame's 1-based coordinates
-            out.append((score, ((i + th / 2) * self.shrink + 0.5,
+            out.append((score, (top + (i + th / 2) * self.shrink + 0.5,
                                 (j + tw / 2) * self.shrink + 0.5)))
             scores[max(0, i - th):i + th + 1, max(0, j - tw):j + tw + 1] = -1.0
         return out

@@ -107,9 +107,16 @@ class StateParams:
     #: Re-acquisition (:mod:`arcf.reacquire`): while not tracking, keep the last trusted model
     #: (no learning, whatever the policy); once lost, look for the target over the whole frame.
     reacquire: bool = True
-    #: Candidate places verified per lost frame with the trusted filter: the bound on a lost
-    #: frame's cost, on top of one coarse template search of the frame.
-    probes: int = 2
+    #: Windows verified per lost frame with the trusted filter (:mod:`arcf.reacquire`): with
+    #: ``search_bands``, the bound on a lost frame's cost. Four, a choice: the place to
+    #: confirm (or a promising one, centred), the band's best, where the target was last
+    #: tracked, the band's second; three found one target fewer again on the made losses
+    #: (docs/track-state.md).
+    probes: int = 4
+    #: Bands the frame's template search is split into, one band per lost frame, so that the
+    #: whole frame is searched every ``search_bands`` frames (a choice: 4, a quarter of a
+    #: whole-frame search per frame).
+    search_bands: int = 4
     #: A place moves the box only if its strength also beats the box's own by this much, and
     #: the box is weaker than a coasting frame: jumping away is riskier than resuming in
     #: place (a choice: a 0.1 margin jumped onto BMX3's background, docs/track-state.md).
@@ -126,8 +133,8 @@ class StateParams:
         if not 0 <= self.lost_below <= self.coast_below <= self.resume_above <= 1:
             problems.append("state thresholds must satisfy 0 <= lost_below <= coast_below "
                             "<= resume_above <= 1")
-        if self.probes < 1:
-            problems.append("state.probes must be >= 1")
+        if self.probes < 1 or self.search_bands < 1:
+            problems.append("state.probes and state.search_bands must be >= 1")
         if not 0 <= self.reacquire_above <= 1:
             problems.append("state.reacquire_above must be in [0, 1]")
         if not 0 <= self.reacquire_margin <= 1:

@@ -52,7 +52,7 @@ from .fourier import (
 )
 from .presets import TrackerParams
 from .reacquire import TEMPLATE_EVERY, TEMPLATE_KEEP, TargetTemplate
-from .region import Region, RegionFrame, clip_region, contains
+from .region import Region, RegionFrame, clip_region, contains, cover
 from .scale import DSSTScaleFilter, scale_limits, search_scale_factors
 from .state import TrackMonitor, TrackState
 from .types import Box, TrackResult, validate_box, validate_frame
@@ -132,8 +132,13 @@ class FrameState:
     initial_look: TargetTemplate | None = None
     #: Position and scale factor on the last tracking frame (the size a lost box keeps).
     tracked: tuple[tuple[float, float], float] | None = None
-    #: Where the search saw the target on the last lost frame (confirmed on the next).
+    #: Where the search saw the target strong on the last lost frame (confirmed on the next).
     candidate: tuple[float, float] | None = None
+    #: Places the next lost frame verifies after ``candidate``, best first: one seen
+    #: promising off its centre (now centred), then the last band's best.
+    leads: list[tuple[float, float]] = field(default_factory=list)
+    #: The band of the frame the next lost frame's template search covers.
+    search_band: int = 0
 
 
 @dataclass(frozen=True)
@@ -343,12 +348,15 @@ class ARCFTracker:
             # on what is not the target means nothing
             if state.tracked is not None:
                 state.scale_factor = state.tracked[1]
-            if self._partial is not None:  # the search reads the whole frame
-                image = self._frame_for_update(self._partial.whole())
-                self._partial = None
-            found = self._reacquire(image, verdict.strength)
+            # the search starts on the frame after the loss: what it reads is then known
+            # before the frame arrives (read_region)
+            found = None
+            if was_lost:
+                image = self._reading(image, self._search_region())
+                found = self._reacquire(image, verdict.strength)
             if found is not None:
                 read, state_now, jumped = found, TrackState.TRACKING, True
+                image = self._reading(image, self._look_region())  # at the place jumped to
         # with re-acquisition on, the filter of the last tracking frame is kept while the
         # track is not tracking: it is what still knows the target
         learns = (state_now is TrackState.TRACKING
@@ -356,7 +364,7 @@ class ARCFTracker:
         if learns and not jumped:
             self._train(image, target_f)
         if policy.reacquire and state_now is not TrackState.LOST:
-            state.candidate = None
+            state.candidate, state.leads = None, []
             if state_now is TrackState.TRACKING and not jumped:
                 state.tracked = (state.pos, state.scale_factor)
                 self._keep_template(image, verdict.strength)
@@ -378,7 +386,8 @@ class ARCFTracker:
 
     def read_region(self) -> Region | None:
         """The pixels the next :meth:`update` reads, as a :data:`~arcf.region.Region` of the
-        frame, or None for the whole frame (before ``init``; while a lost track searches it).
+        frame, or None for the whole frame (before ``init``). While a lost track searches, the
+        region also covers the search's band and windows (:meth:`_search_region`).
 
         A bound, not a trace: the detection windows around the rounded position at the
         largest searched scale, and every window cut after detection (the training sample,
@@ -390,13 +399,14 @@ class ARCFTracker:
         the region give every preset's results bit for bit."""
         if self._state is None:
             return None
-        if self.params.state.reacquire and self._monitor.state is TrackState.LOST:
-            return None
         layout, state = self.layout, self.state
         r, c = self._sample_pos()
         detect = layout.sample_sz * state.scale_factor * float(np.max(layout.scale_factors))
         half = max(detect / 2, READ_STEP * detect + self._after_half()) + READ_MARGIN
-        return clip_region(r - 1 - half, c - 1 - half, r + half, c + half, layout.image_hw)
+        region = clip_region(r - 1 - half, c - 1 - half, r + half, c + half, layout.image_hw)
+        if self.params.state.reacquire and self._monitor.state is TrackState.LOST:
+            return cover((region, self._search_region()))
+        return region
 
     def _after_half(self) -> float:
         """Half the side of the largest window cut after detection (source pixels), at the
@@ -414,17 +424,27 @@ class ARCFTracker:
         """The frame the rest of the update reads, the target now at its detected place: a
         region frame's whole picture when that place lies beyond what :meth:`read_region`
         allowed for."""
-        partial = self._partial
-        if partial is None:
+        if self._partial is None:
             return image
         r, c = self.state.pos
         half = self._after_half() + READ_MARGIN
-        needed = clip_region(r - 1 - half, c - 1 - half, r + half, c + half,
-                             self.layout.image_hw)
-        if contains(partial.region, needed):
+        return self._reading(image, clip_region(r - 1 - half, c - 1 - half, r + half, c + half,
+                                                self.layout.image_hw))
+
+    def _reading(self, image: np.ndarray, needed: Region | None) -> np.ndarray:
+        """``image``, or the region frame's whole picture when ``needed`` (None: the whole
+        frame) lies beyond the region it holds."""
+        partial = self._partial
+        if partial is None or (needed is not None and contains(partial.region, needed)):
             return image
         self._partial = None
         return self._frame_for_update(partial.whole())
+
+    def _look_region(self) -> Region:
+        """The target's box around the current position: what the look reads."""
+        (r, c), (h, w) = self.state.pos, self._size_hw()
+        return clip_region(r - 2 - h / 2, c - 2 - w / 2, r + 1 + h / 2, c + 1 + w / 2,
+                           self.layout.image_hw)
 
     def steer(self, box: Box) -> None:
         """Search around ``box`` on the next ``update``, at its size: a companion tracker's box
@@ -457,11 +477,47 @@ class ARCFTracker:
             state.trusted_frames = 0
             state.templates.append(TargetTemplate.cut(image, state.pos, self._size_hw()))
 
+    def _search_places(self) -> list[tuple[float, float]]:
+        """The places the next lost frame verifies, in order, at most ``probes``: the one seen
+        strong on the frame before (to confirm), the leads (a promising place now centred,
+        the last band's best), where the target was last tracked (a target hidden where it
+        stood comes back there), the band's others."""
+        state = self.state
+        first = [state.candidate] if state.candidate is not None else []
+        first += state.leads[:1]
+        if state.tracked is not None:
+            first.append(state.tracked[0])
+        return (first + state.leads[1:])[:self.params.state.probes]
+
+    def _search_band(self) -> tuple[int, int]:
+        """Source rows ``[top, bottom)`` of the band the next lost frame's template search
+        covers (``(0, 0)``: none, no template kept yet)."""
+        state = self.state
+        if not state.templates:
+            return 0, 0
+        return state.templates[0].band(self.layout.image_hw, state.search_band,
+                                       self.params.state.search_bands)
+
+    def _search_region(self) -> Region | None:
+        """What the next lost frame's search reads: the band, whole rows, and a window at
+        the track's lost scale around each place it verifies (with the target's box around
+        the window's farthest point: the look, should the track jump there)."""
+        layout, state = self.layout, self.state
+        rows, cols = layout.image_hw
+        top, bottom = self._search_band()
+        scale = state.tracked[1] if state.tracked is not None else state.scale_factor
+        half = (layout.sample_sz * scale + max(layout.target_size) * scale) / 2 + READ_MARGIN
+        regions = [clip_region(r - 1 - half, c - 1 - half, r + half, c + half, (rows, cols))
+                   for r, c in self._search_places()]
+        if bottom > top:
+            regions.append((top, 0, bottom, cols))
+        return cover(regions) if regions else None
+
     def _reacquire(self, image: np.ndarray,
                    strength: float) -> tuple[float, float, float] | None:
-        """Look for the target over the whole frame (:mod:`arcf.reacquire`): the kept
-        template proposes ``probes`` places, the kept filter verifies each (and the place where
-        the target was last tracked, and the one found on the frame before). A place strong
+        """Look for the target (:mod:`arcf.reacquire`), within the frame's budget: the kept
+        filter verifies the places queued on the frame before (:meth:`_search_places`), and
+        the kept template searches one band of the frame for the next frame's. A place strong
         enough on two frames in a row, and clearly stronger than the box, moves the track
         there; returned are the PSR, ln strength and ln aberrance ratio (0: no previous map
         there) the confidence reads. The box itself keeps following the filter, so a track
@@ -469,24 +525,16 @@ class ARCFTracker:
         state, policy = self.state, self.params.state
         if not state.templates:
             return None
-        places = [c for _, c in state.templates[0].candidates(image, policy.probes)]
-        if state.tracked is not None:  # a target hidden where it stood comes back there
-            places.append(state.tracked[0])
-        if state.candidate is not None:
-            places.append(state.candidate)
+        places, (top, bottom) = self._search_places(), self._search_band()
         best: tuple[float, float, tuple[float, float], np.ndarray] | None = None
         for centre in places:
             peak, psr, pos, response = self._probe(image, centre, state.g_f)
             s = self._monitor.probe(peak, psr)
             if best is None or s > best[0]:
                 best = (s, psr, pos, response)
-        if best is not None and best[0] >= policy.lost_below:
-            # a promising place may sit off the target's centre, where the cosine window
-            # dims it: one more window centred on the filter's peak tells
-            peak, psr, pos, response = self._probe(image, best[2], state.g_f)
-            s = self._monitor.probe(peak, psr)
-            if s > best[0]:
-                best = (s, psr, pos, response)
+        found = state.templates[0].candidates(image, policy.probes, rows=(top, bottom))
+        state.search_band = (state.search_band + 1) % policy.search_bands
+        state.leads = [c for _, c in found]
         if math.isnan(strength):
             strength = 0.0
         # the box is abandoned only where it is weaker than a coasting one, for a place
@@ -494,6 +542,10 @@ class ARCFTracker:
         if (best is None or strength >= policy.coast_below or best[0] < policy.reacquire_above
                 or best[0] < strength + policy.reacquire_margin):
             state.candidate = None
+            if best is not None and best[0] >= policy.lost_below:
+                # a promising place may sit off the target's centre, where the cosine
+                # window dims it: the next frame's window is centred on the filter's peak
+                state.leads.insert(0, best[2])
             return None
         s, psr, pos, response = best
         previous, state.candidate = state.candidate, pos

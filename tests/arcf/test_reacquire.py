@@ -47,6 +47,38 @@ def test_the_template_proposes_the_target_anywhere_in_the_frame(
     assert template.candidates(later[:5, :5], 3) == []  # a frame smaller than the template
 
 
+@pytest.mark.parametrize("bands", [1, 3, 4, 7])
+def test_the_bands_together_search_the_whole_frame_once(
+        bands: int, hidden_target_scene: Callable[[int], Any]) -> None:
+    """Band by band, every placement of the whole frame's search is matched once, and the
+    best of the bands is the whole frame's best, reading only the band's rows."""
+    frame, box = hidden_target_scene(0)
+    x, y, w, h = box
+    template = TargetTemplate.cut(frame, (y + (h - 1) / 2, x + (w - 1) / 2), (h, w))
+    later = hidden_target_scene(45)[0]
+    k, th = int(template.shrink), template.pixels.shape[0]
+    placements = later.shape[0] // k - th + 1
+    rows = [template.band(later.shape[:2], i, bands) for i in range(bands)]
+    # consecutive placements, each band holding the template at each of its own
+    starts = [top // k for top, _ in rows]
+    ends = [bottom // k - th + 1 for _, bottom in rows]
+    assert starts[0] == 0 and ends[-1] == placements
+    assert all(e == s for e, s in zip(ends, starts[1:], strict=False))
+    best_whole = template.candidates(later, 1)[0]
+    found = []
+    for top, bottom in rows:
+        masked = later.copy()  # pixels outside the band must not matter
+        masked[:top] = 255
+        masked[bottom:] = 0
+        found += template.candidates(masked, 1, rows=(top, bottom))
+    score, centre = max(found)
+    assert score == pytest.approx(best_whole[0], abs=1e-4)
+    assert math.dist(centre, best_whole[1]) <= 1e-6
+    # more bands than placements: some bands are empty, and read nothing
+    assert template.band(later.shape[:2], 0, 10 * placements) == (0, 0)
+    assert template.candidates(later, 1, rows=(0, 0)) == []
+
+
 def _iou(a: tuple[float, ...], b: tuple[float, ...]) -> float:
     ix = max(0.0, min(a[0] + a[2], b[0] + b[2]) - max(a[0], b[0]))
     iy = max(0.0, min(a[1] + a[3], b[1] + b[3]) - max(a[1], b[1]))
@@ -88,11 +120,11 @@ def test_a_lost_target_is_found_again_far_from_where_it_vanished(
     assert found[events[0] - 1].state is TrackState.TRACKING
     assert all(_iou(r.box, hidden_target_scene(k)[1]) > 0.5  # type: ignore[arg-type]
                for k, r in enumerate(found, start=1) if k >= events[0])
-    # a bounded number of windows per frame: the proposals, where the target was last
-    # tracked, the place seen on the frame before and the refinement; only while lost
-    assert max(probes) <= StateParams().probes + 3
-    assert all(n == 0 for n, r in zip(probes[len(plain):], found, strict=True)
-               if r.state is not TrackState.LOST and not r.reacquired)
+    # the budget: at most ``probes`` windows per frame, only on frames after a lost one
+    assert max(probes) == StateParams().probes
+    after_lost = [False] + [r.state is TrackState.LOST for r in found[:-1]]
+    assert all(n == 0 for n, lost in zip(probes[len(plain):], after_lost, strict=True)
+               if not lost)
     # identical to the plain tracker until the target vanished
     assert [r.box for r in found[:29]] == [r.box for r in plain[:29]]
 
