@@ -3,7 +3,9 @@ queues, pickled). Internal, not part of the wire contract: typed as the wire mes
 that a misspelt field fails where it is written instead of as a KeyError in another process.
 
 Control plane -> worker: :class:`StartSession`, :class:`ReinitSession`, :class:`StopSession`,
-each with the ``reply_id`` the control plane waits on. Worker -> control plane:
+and a stream's move (:class:`PrepareStream` to the new worker, :class:`ReleaseStream` to the
+old, :class:`AdoptStream` to the new), each with the ``reply_id`` the control plane waits on.
+Worker -> control plane:
 :class:`Confirmation` of a command; :class:`Fenced` when a worker dropped its sessions
 because the instance lost its place in the cluster; :class:`SessionsEnded` when it ended
 sessions by itself (idle, unusable box, over budget); :class:`SessionStats` every second.
@@ -13,6 +15,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from typing import Any, Literal
+
+from .placement import StreamLoad
 
 
 @dataclass(frozen=True)
@@ -52,7 +56,36 @@ class StopSession:
     reply_id: str | None = None
 
 
-Command = StartSession | ReinitSession | StopSession
+@dataclass(frozen=True)
+class PrepareStream:
+    """Subscribe to a stream about to move here (its frames queue, untracked, until
+    :class:`AdoptStream`), so that no frame published during the move is lost."""
+
+    stream_id: str
+    reply_id: str | None = None
+
+
+@dataclass(frozen=True)
+class ReleaseStream:
+    """Hand a stream over: stop receiving it, track the frames already received, and answer
+    with its sessions' state (``Confirmation.payload``) for the worker that adopts it."""
+
+    stream_id: str
+    reply_id: str | None = None
+
+
+@dataclass(frozen=True)
+class AdoptStream:
+    """Run a prepared stream's sessions from the state another worker released (``payload``);
+    None drops the preparation (the release failed)."""
+
+    stream_id: str
+    payload: bytes | None
+    reply_id: str | None = None
+
+
+Command = (StartSession | ReinitSession | StopSession | PrepareStream | ReleaseStream
+           | AdoptStream)
 
 
 @dataclass(frozen=True)
@@ -64,6 +97,8 @@ class Confirmation:
     ok: bool
     message: str = ""
     code: str | None = None
+    #: what the command gives back (a released stream's state)
+    payload: bytes | None = None
 
 
 @dataclass(frozen=True)
@@ -95,8 +130,10 @@ class SessionStat:
 
 @dataclass(frozen=True)
 class SessionStats:
-    """Every session of worker ``worker``, sent once a second."""
+    """Every session of worker ``worker``, and what each of its streams cost over the last
+    second (:mod:`arcf.service.placement`), sent once a second."""
 
     worker: int
     sessions: dict[str, SessionStat]
+    streams: dict[str, StreamLoad] = field(default_factory=dict)
 

@@ -49,21 +49,25 @@ from arcf.schemas import (
     encode,
 )
 
-from .cluster import Cluster, owner, weight
+from .cluster import Cluster, owner
 from .commands import (
+    AdoptStream,
     Command,
     Fenced,
+    PrepareStream,
     ReinitSession,
+    ReleaseStream,
     SessionsEnded,
     SessionStat,
     SessionStats,
     StartSession,
     StopSession,
 )
+from .placement import LoadBook, Move
 from .settings import ServiceSettings
 from .supervision import Strikes
 
-__all__ = ["ControlPlane", "SessionRecord", "owner", "place"]
+__all__ = ["ControlPlane", "SessionRecord", "owner"]
 
 if TYPE_CHECKING:
     import zenoh
@@ -78,19 +82,6 @@ Reply = Ack | Status | Presets
 #: registry (a registry entry could outlive it in another instance's copy, and be "taken
 #: over" when this instance dies).
 READINESS_PREFIX = "_ready-"
-
-
-def place(stream_id: str, streams_per_worker: Sequence[int]) -> int:
-    """The worker for a new stream within one instance: the least-loaded one (fewest streams),
-    ties broken by rendezvous rank so the choice is deterministic.
-
-    Pure hashing would put two of two streams on the same worker half the time (measured in
-    the load test); counting streams spreads them. Across instances (scale-out) ownership stays
-    with :func:`owner`, which needs no shared state.
-    """
-    workers = range(len(streams_per_worker))
-    rank = {w: i for i, w in enumerate(sorted(workers, key=lambda w: -weight(stream_id, w)))}
-    return min(workers, key=lambda w: (streams_per_worker[w], rank[w]))
 
 
 @dataclass
@@ -147,6 +138,12 @@ class ControlPlane:
         self.strikes = Strikes(settings.quarantine_after, settings.quarantine_s)
         #: replacement workers not ready yet: sessions go to a live worker meanwhile
         self.starting: set[int] = set()
+        #: what each stream costs, from the workers' reports (placement and moves)
+        self.book = LoadBook(min_gain=settings.balance_min_gain,
+                             busy_above=settings.balance_busy_above)
+        #: workers reported since the last balance, and when it was (monotonic)
+        self._reported: set[int] = set()
+        self._balanced_at = time.monotonic()
 
     def _pump(self) -> None:
         """Hand workers' confirmations to the requests waiting for them. Never blocks on a
@@ -169,25 +166,37 @@ class ControlPlane:
         elif isinstance(item, SessionsEnded):
             self.background.submit(self._ended, item)
         elif isinstance(item, SessionStats):
+            now = time.monotonic()
             with self.lock:
                 self.stats[item.worker] = item.sessions
-                due = [c for c, t in self.client_deadlines.items() if t <= time.monotonic()]
+                self.book.report(item.streams)
+                self._reported.add(item.worker)
+                due = [c for c, t in self.client_deadlines.items() if t <= now]
                 for client in due:
                     del self.client_deadlines[client]
+                balance = (self.settings.balance_s > 0 and len(self.queues) > 1
+                           and now - self._balanced_at >= self.settings.balance_s
+                           and self._reported >= set(range(len(self.queues))))
+                if balance:
+                    self._reported.clear()
+                    self._balanced_at = now
             for client in due:
                 self.background.submit(self._client_gone, client)
+            if balance:
+                self.background.submit(self.balance)
         else:
             with self.lock:
                 waiter = self._waiting.pop(item.reply_id, None)
             if waiter is not None:
-                waiter[1].extend((item.ok, item.message, item.code))
+                waiter[1].extend((item.ok, item.message, item.code, item.payload))
                 waiter[0].set()
 
-    def _forward(self, worker: int, cmd: Command) -> None:
-        """Send a command to its worker and wait until the worker has applied it."""
+    def _forward(self, worker: int, cmd: Command) -> bytes | None:
+        """Send a command to its worker and wait until the worker has applied it; what the
+        worker gave back (a released stream's state), if anything."""
         if self.responses is None:
             self.queues[worker].put(cmd)
-            return
+            return None
         cid = uuid.uuid4().hex
         event, slot = threading.Event(), list[Any]()
         with self.lock:
@@ -204,6 +213,7 @@ class ControlPlane:
             if slot[2]:  # refused for the request's own fault
                 raise _Refused(ErrorCode(slot[2]), slot[1])
             raise _Refused(ErrorCode.INTERNAL, f"worker {worker} failed: {slot[1]}")
+        return cast("bytes | None", slot[3])
 
     def _ended(self, item: SessionsEnded) -> None:
         """A worker ended sessions by itself (idle, unusable box, over budget): they are gone
@@ -422,15 +432,10 @@ class ControlPlane:
             if same:
                 w = same[0]
             else:
-                load = [0] * len(self.queues)
-                for _stream, worker in {(r.stream_id, r.worker) for r in self.sessions.values()}:
-                    load[worker] += 1
-                if len(self.starting) < len(self.queues):
-                    # a replacement still starting would hold the session for seconds: a
-                    # live worker takes it (counted as fully loaded, it is chosen last)
-                    for worker in self.starting:
-                        load[worker] = max(load) + len(self.sessions) + 1
-                w = place(stream_id, load)
+                # a replacement still starting would hold the session for seconds: a live
+                # worker takes it (the starting ones are chosen last)
+                starting = self.starting if len(self.starting) < len(self.queues) else ()
+                w = self.book.place(stream_id, self._where(), len(self.queues), starting)
             self.sessions[sid] = SessionRecord(sid, stream_id, preset, w, time.time(),
                                                client_id, token_sha256)
             if client_id is not None and client_id not in self.live_clients:
@@ -438,6 +443,81 @@ class ControlPlane:
                 self.client_deadlines.setdefault(
                     client_id, time.monotonic() + self.settings.client_grace_s)
         return w
+
+    def _where(self) -> dict[str, int]:
+        """stream -> its worker, from the session records (call with ``lock`` held)."""
+        return {r.stream_id: r.worker for r in self.sessions.values()}
+
+    # ------------------------------------------------------------------ moves
+    def balance(self) -> Move | None:
+        """Move one stream from the busiest worker to a less busy one, if the measured loads
+        say it is worth it (:mod:`arcf.service.placement`); the move made, if any."""
+        from . import metrics
+
+        with self.op_lock:
+            with self.lock:
+                move = self.book.plan_move(self._where(), len(self.queues), time.monotonic(),
+                                           self.starting)
+            if move is None:
+                return None
+            try:
+                self.move(move.stream_id, move.source, move.target)
+            except _Refused as exc:
+                log.warning("stream %s not moved from worker %d to %d: %s", move.stream_id,
+                            move.source, move.target, exc.message)
+                metrics.STREAM_MOVES.labels(outcome="refused").inc()
+                with self.lock:
+                    self.book.moved(move.stream_id, time.monotonic())  # not tried again at once
+                return None
+            metrics.STREAM_MOVES.labels(outcome="moved").inc()
+            log.info("stream %s moved from worker %d to %d (busiest worker %.2f -> %.2f cores)",
+                     move.stream_id, move.source, move.target, move.before, move.after)
+            return move
+
+    def move(self, stream_id: str, source: int, target: int) -> None:
+        """Move a stream and its sessions from worker ``source`` to ``target``, their state
+        with them: the target subscribes first (no frame is lost), the source stops, tracks
+        what it already received and hands the state over, the target goes on from there.
+        Raises ``_Refused`` when the stream stays where it was (its sessions intact), or
+        could not be taken up (its sessions then end, withdrawn from the registry)."""
+        with self.op_lock:
+            with self.lock:
+                sids = [r.session_id for r in self.sessions.values() if r.stream_id == stream_id]
+                if not sids or any(self.sessions[s].worker != source for s in sids):
+                    raise _Refused(ErrorCode.INVALID_REQUEST,
+                                   f"stream {stream_id!r} does not run on worker {source}")
+            self._forward(target, PrepareStream(stream_id))
+            try:
+                payload = self._forward(source, ReleaseStream(stream_id))
+                if payload is None:
+                    raise _Refused(ErrorCode.INTERNAL, "the released stream came without state")
+            except _Refused:
+                self._call_off(target, stream_id)
+                raise
+            try:
+                self._forward(target, AdoptStream(stream_id, payload))
+            except _Refused as exc:
+                log.error("stream %s lost its sessions in a move: %s", stream_id, exc.message)
+                self._call_off(target, stream_id)
+                with self.lock:
+                    for sid in sids:
+                        self.sessions.pop(sid, None)
+                if self.cluster is not None:
+                    for sid in sids:
+                        self.cluster.withdraw(sid)
+                raise
+            with self.lock:
+                for sid in sids:
+                    if sid in self.sessions:
+                        self.sessions[sid].worker = target
+                self.book.moved(stream_id, time.monotonic())
+
+    def _call_off(self, worker: int, stream_id: str) -> None:
+        try:
+            self._forward(worker, AdoptStream(stream_id, None))
+        except _Refused as exc:
+            log.error("worker %d kept a preparation of stream %s: %s", worker, stream_id,
+                      exc.message)
 
     # ------------------------------------------------------------------ queries
     def handle_query(self, query: zenoh.Query) -> None:

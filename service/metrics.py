@@ -59,6 +59,11 @@ CONTROL = Counter("arcf_control_requests_total", "Control requests by type and o
                   ["type", "outcome"])
 TAKEOVERS = Counter("arcf_sessions_taken_over_total",
                     "Sessions this instance took over from another (failover or rebalance)")
+STREAM_MOVES = Counter(
+    "arcf_stream_moves_total",
+    "Streams moved from this instance's busiest worker to a less busy one, by the CPU each "
+    "stream measured (balance_s), with their sessions' state: moved, or refused (it stayed)",
+    ["outcome"])
 HANDOVERS = Counter("arcf_sessions_handed_over_total",
                     "Sessions this instance handed to another (an instance joined)")
 WORKER_DEATHS = Counter(

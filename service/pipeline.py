@@ -191,6 +191,10 @@ class FramePipeline:
     def _admit(self, stream: Stream, seq: int) -> bool:
         """The stream's numbering: a plausible next frame (the skipped numbers counted as
         lost), else refused and reported."""
+        if stream.handed_through is not None:
+            if seq <= stream.handed_through:  # tracked by the worker it moved from
+                return False
+            stream.handed_through = None
         last, now = stream.numbering.last, time.monotonic()
         verdict, lost = stream.numbering.admit(seq, now)
         if verdict is Verdict.STALE:

@@ -116,6 +116,20 @@ class ServiceSettings:
         "counted in arcf_sessions_shed_total). Among equals nothing is shed: each stream "
         "keeps its newest frames and drops the rest (counted); a stream alone on its worker "
         "may use all of it. 0: off"))
+    balance_s: float = field(default=2.0, metadata=_about(
+        "every this many seconds, the pool moves one stream from its busiest worker to a "
+        "less busy one if that lowers the busiest worker's load (the CPU each stream used, "
+        "smoothed over a few seconds) by at least balance_min_gain and that worker is above "
+        "balance_busy_above; a moved stream is not moved again for 10 s. Its sessions' state "
+        "moves with it (the next result is the one the old worker would have given); video "
+        "streams and the Siamese presets' stay. New streams go to the least loaded worker "
+        "either way. 0: streams stay where they were placed"))
+    balance_min_gain: float = field(default=0.1, metadata=_about(
+        "cores a move must take off the busiest worker (balance_s); negative: a stream moves "
+        "every round even when it does not help (for testing the moves)"))
+    balance_busy_above: float = field(default=0.5, metadata=_about(
+        "cores below which the busiest worker is left alone (balance_s): its frames do not "
+        "wait; negative: always balanced"))
     worker_max_rss_mb: int = field(default=2048, metadata=_about(
         "a worker whose resident memory passes this (checked every second) resets its video "
         "decoders, each stream resuming at its next keyframe (decode_error, resync cause "
@@ -184,6 +198,8 @@ class ServiceSettings:
             raise ValueError("quarantine_after must be >= 0 (0: never) and quarantine_s > 0")
         if self.worker_max_rss_mb < 0:
             raise ValueError("worker_max_rss_mb must be >= 0 (0: off)")
+        if self.balance_s < 0:
+            raise ValueError(f"balance_s must be >= 0 (0: off), got {self.balance_s!r}")
         if not 0 <= self.worker_budget <= 1:
             raise ValueError(f"worker_budget must be within [0, 1] (0: off), got "
                              f"{self.worker_budget!r}")

@@ -46,6 +46,9 @@ class Session:
     fresh_at: float = field(default_factory=time.monotonic)
     #: monotonic time of its last ``stale`` notice; None while its stream delivers
     stale_noticed: float | None = None
+    #: whether its tracker's state can move to another worker (checked once, when asked:
+    #: :func:`arcf.service.handoff.movable`)
+    portable: bool | None = None
 
     def stat(self) -> SessionStat:
         return SessionStat(self.frames, self.last_seq, self.last_result_ns,
@@ -114,6 +117,12 @@ class Stream:
     window_wait_s: float = 0.0
     window_turns: int = 0
     trimmed_before: int = 0
+    #: CPU seconds of its turns (decoding and tracking) since the last load report
+    #: (:mod:`arcf.service.placement`)
+    load_cpu_s: float = 0.0
+    #: after a move, the last frame the worker it came from tracked: frames up to it, which
+    #: reached both workers during the move, are dropped here without a word
+    handed_through: int | None = None
 
     def notify(self, code: ErrorCode, message: str, seq: int | None = None,
                every_s: float = 1.0) -> bool:

@@ -31,11 +31,15 @@ from arcf.schemas import (
     encode,
 )
 
+from . import handoff
 from .commands import (
+    AdoptStream,
     Command,
     Confirmation,
     Fenced,
+    PrepareStream,
     ReinitSession,
+    ReleaseStream,
     SessionsEnded,
     SessionStats,
     StartSession,
@@ -43,6 +47,7 @@ from .commands import (
 )
 from .intake import Inbox, Numbering
 from .pipeline import FramePipeline
+from .placement import StreamLoad
 from .sessions import SessionTable
 from .settings import ServiceSettings
 from .stages import StageClock
@@ -99,6 +104,8 @@ class Worker:
         self.instance_watch = self.session.liveliness().declare_subscriber(
             self.keys.instance_token(settings.instance_id), self._on_instance_token)
         self.table = SessionTable()
+        #: streams about to move here: subscribed, their frames queued until adopted
+        self.prepared: dict[str, Stream] = {}
         self.busy = metrics.BUSY.labels(worker=str(index))
         #: CPU per stage of a frame's path (arcf_stage_cpu_seconds_total)
         self.clock = StageClock(metrics.STAGE_CPU)
@@ -204,11 +211,17 @@ class Worker:
             self.metrics.SHED.labels(cause=shed.cause).inc()
             self._end(shed.session, shed.why, ErrorCode.LIMIT_EXCEEDED)
 
-    def _housekeeping(self) -> None:
-        """Once a second: end the sessions idle past ``session_idle_s``, report the rest."""
+    def _housekeeping(self, window_s: float) -> None:
+        """Once a second: end the sessions idle past ``session_idle_s``, report the rest and
+        what each stream cost over the window (``window_s`` seconds)."""
         for s, why in self.table.expired(time.monotonic(), self.settings.session_idle_s):
             self._end(s, why, ErrorCode.SESSION_EXPIRED)
-        self.responses.put(SessionStats(self.index, self.table.stats()))
+        loads = {}
+        for stream in self.table.streams.values():
+            loads[stream.stream_id] = StreamLoad(stream.load_cpu_s / max(window_s, 1e-3),
+                                                 handoff.movable(stream))
+            stream.load_cpu_s = 0.0
+        self.responses.put(SessionStats(self.index, self.table.stats(), loads))
 
     def _drain(self) -> None:
         """On shutdown: finish the frames already received (at most ``frame_queue`` per
@@ -241,8 +254,8 @@ class Worker:
     def _apply(self, cmd: Command) -> None:
         """Apply one command and confirm it, so the control plane's ack means "in effect"."""
         try:
-            self._apply_command(cmd)
-            reply = Confirmation(cmd.reply_id or "", True)
+            payload = self._apply_command(cmd)
+            reply = Confirmation(cmd.reply_id or "", True, payload=payload)
         except _CommandRefused as exc:
             reply = Confirmation(cmd.reply_id or "", False, str(exc), exc.code.value)
         except Exception as exc:  # reported to the requester, never fatal to the worker
@@ -251,7 +264,8 @@ class Worker:
         if cmd.reply_id is not None:
             self.responses.put(reply)
 
-    def _apply_command(self, cmd: Command) -> None:
+    def _apply_command(self, cmd: Command) -> bytes | None:
+        """Apply ``cmd``; what it gives back (a released stream's state), if anything."""
         if isinstance(cmd, StartSession):
             self._start(cmd)
         elif isinstance(cmd, ReinitSession):
@@ -271,8 +285,15 @@ class Worker:
                 if cmd.code:
                     self.metrics.ERRORS.labels(kind=cmd.code).inc()
             self._stop(cmd.session_id)
+        elif isinstance(cmd, PrepareStream):
+            self._prepare(cmd.stream_id)
+        elif isinstance(cmd, ReleaseStream):
+            return self._release(cmd.stream_id)
+        elif isinstance(cmd, AdoptStream):
+            self._adopt(cmd.stream_id, cmd.payload)
         else:
             raise TypeError(f"unknown worker command {cmd!r}")
+        return None
 
     def _check_frame_seq(self, stream_id: str, frame_seq: int | None) -> None:
         """Refuse a box for a frame the stream may never send (the session table's rule)."""
@@ -285,26 +306,15 @@ class Worker:
             raise _CommandRefused(ErrorCode.INVALID_REQUEST,
                                   f"session {cmd.session_id!r} already runs here")
         stream_id = cmd.stream_id
+        if stream_id in self.prepared:  # moving here: refused, so that it is started again
+            raise _CommandRefused(ErrorCode.INTERNAL, f"stream {stream_id!r} is moving to "
+                                  "this worker; retry")
         stream = self.table.streams.get(stream_id)
         if cmd.status != "resumed":
             self._check_frame_seq(stream_id, cmd.frame_seq)
         if stream is None:
-            cfg = self.settings
-            video_key = cfg.video_key.replace("{stream}", stream_id) if cfg.video_key else None
-            inbox = Inbox(self.keys.frames(stream_id), video_key, cfg.frame_queue, cfg.video_queue,
-                           cfg.max_stream_fps, cfg.max_payload, self.wake, self.metrics, self.clock)
-            sub = self.session.declare_subscriber(self.keys.frames(stream_id), inbox)
-            errors = self.session.declare_publisher(
-                self.keys.errors(stream_id), congestion_control=self.zenoh.CongestionControl.DROP)
-            stream = Stream(
-                stream_id, sub, inbox, errors,
-                Numbering(cfg.max_seq_gap, cfg.resync_frames, rate=cfg.max_stream_fps))
-            if video_key:
-                stream.video_subscriber = self.session.declare_subscriber(video_key, inbox.video)
-            self.metrics.STREAMS.inc()
-        pub = self.session.declare_publisher(
-            self.keys.results(stream_id, cmd.session_id),
-            congestion_control=self.zenoh.CongestionControl.DROP)
+            stream = self._declare_stream(stream_id)
+        pub = self._declare_results(stream_id, cmd.session_id)
         try:
             # after every declaration (the stream's subscriber, the session's publisher with
             # Zenoh's writer-side filtering): acked means the first frame and result flow
@@ -326,6 +336,84 @@ class Worker:
         self.metrics.SESSIONS.inc()
         if self.settings.stale_after_s:  # it may go stale before any other deadline
             self.stale_due = min(self.stale_due, s.fresh_at + self.settings.stale_after_s)
+
+    def _declare_stream(self, stream_id: str) -> Stream:
+        """Subscribe to a stream's frames (and video key), with its queue and error key."""
+        cfg = self.settings
+        video_key = cfg.video_key.replace("{stream}", stream_id) if cfg.video_key else None
+        inbox = Inbox(self.keys.frames(stream_id), video_key, cfg.frame_queue, cfg.video_queue,
+                      cfg.max_stream_fps, cfg.max_payload, self.wake, self.metrics, self.clock)
+        sub = self.session.declare_subscriber(self.keys.frames(stream_id), inbox)
+        errors = self.session.declare_publisher(
+            self.keys.errors(stream_id), congestion_control=self.zenoh.CongestionControl.DROP)
+        stream = Stream(stream_id, sub, inbox, errors,
+                        Numbering(cfg.max_seq_gap, cfg.resync_frames, rate=cfg.max_stream_fps))
+        if video_key:
+            stream.video_subscriber = self.session.declare_subscriber(video_key, inbox.video)
+        self.metrics.STREAMS.inc()
+        return stream
+
+    def _declare_results(self, stream_id: str, session_id: str) -> Any:
+        return self.session.declare_publisher(
+            self.keys.results(stream_id, session_id),
+            congestion_control=self.zenoh.CongestionControl.DROP)
+
+    # ------------------------------------------------------------------ moves
+    def _prepare(self, stream_id: str) -> None:
+        """Subscribe to a stream moving here; its frames queue until :meth:`_adopt`."""
+        if stream_id in self.table.streams or stream_id in self.prepared:
+            raise _CommandRefused(ErrorCode.INVALID_REQUEST,
+                                  f"stream {stream_id!r} already runs here")
+        self.prepared[stream_id] = self._declare_stream(stream_id)
+        self._sync_with_router()
+
+    def _release(self, stream_id: str) -> bytes:
+        """Stop receiving a stream, track the frames it already sent here, and give its
+        sessions' state away (they end here without a last result: they go on elsewhere)."""
+        stream = self.table.streams.get(stream_id)
+        if stream is None:
+            raise _CommandRefused(ErrorCode.UNKNOWN_SESSION,
+                                  f"stream {stream_id!r} does not run here")
+        if not handoff.movable(stream):
+            raise _CommandRefused(ErrorCode.INVALID_REQUEST,
+                                  f"stream {stream_id!r} cannot move (video, or a tracker "
+                                  "whose state cannot be handed over)")
+        # every frame the router sent here before the new worker subscribed must be in the
+        # queue before the subscription goes (one sent just before could still be on its
+        # way to the callback, and would reach neither worker): the router's answer to this
+        # query comes after them on the same link
+        self._sync_with_router()
+        stream.subscriber.undeclare()
+        stream.subscriber = _Undeclared()
+        if stream.video_subscriber is not None:
+            stream.video_subscriber.undeclare()
+            stream.video_subscriber = _Undeclared()
+        while (item := stream.inbox.pop()) is not None:
+            self._process(stream, *item)
+        payload = handoff.pack(stream)
+        for sid in list(stream.sessions):
+            self._stop(sid)
+        return payload
+
+    def _adopt(self, stream_id: str, payload: bytes | None) -> None:
+        """Run a prepared stream's sessions from the state released elsewhere (None: the move
+        was called off, the preparation is dropped)."""
+        stream = self.prepared.pop(stream_id, None)
+        if payload is None:
+            if stream is not None:
+                self._drop_stream(stream)
+            return
+        if stream is None:
+            raise _CommandRefused(ErrorCode.INVALID_REQUEST,
+                                  f"stream {stream_id!r} was not prepared here")
+        state = handoff.unpack(payload)
+        stream.numbering = state.numbering
+        stream.handed_through = state.numbering.last
+        for st in state.sessions:
+            s = st.session(stream_id, self._declare_results(stream_id, st.session_id))
+            self.table.add(s, stream)
+            self.metrics.SESSIONS.inc()
+        self._sync_with_router()
 
     def _sync_with_router(self) -> None:
         """Return once the router has processed this worker's latest declarations.
@@ -413,7 +501,7 @@ class Worker:
                     if item is None:
                         continue
                     worked = True
-                    t0 = time.perf_counter()
+                    t0, c0 = time.perf_counter(), time.thread_time()
                     if self.inflight is not None:
                         self.inflight.set(stream.stream_id)
                     try:
@@ -427,6 +515,7 @@ class Worker:
                             self.inflight.clear()
                     spent = time.perf_counter() - t0
                     busy_s += spent
+                    stream.load_cpu_s += time.thread_time() - c0
                     if spent > 0.5:
                         log.warning("worker %d: a frame of stream %s took %.0f ms", self.index,
                                     stream.stream_id, 1e3 * spent)
@@ -441,19 +530,28 @@ class Worker:
                             rss > self.settings.worker_max_rss_mb << 20:
                         self._release_memory(rss)
                     self._shed(busy_s / (now - t_window), now - t_window)
-                    busy_s, t_window = 0.0, now
                     self.clock.flush()
-                    self._housekeeping()
+                    self._housekeeping(now - t_window)
+                    busy_s, t_window = 0.0, now
         if self.stop.is_set():
             self._drain()
 
     def close(self) -> None:
         self.clock.flush()  # the last partial second
         self.instance_watch.undeclare()
+        for stream in self.prepared.values():
+            self._drop_stream(stream)
         for s in self.table:
             self._stop(s.session_id)
         self.token.undeclare()
         self.session.close()
+
+
+class _Undeclared:
+    """In place of a stream's subscriber once a move undeclared it."""
+
+    def undeclare(self) -> None:
+        pass
 
 
 def _trim_heap() -> bool:

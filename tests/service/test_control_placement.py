@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from arcf.service.control import owner, place
+from arcf.service.control import owner
+from arcf.service.placement import place
 
 
 def test_owner_is_stable_and_moves_few_streams_when_a_worker_is_added() -> None:
