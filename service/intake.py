@@ -126,7 +126,11 @@ class Inbox:
     (``rate_limited``) and reported by the loop, instead of the queue silently trimming it.
     ``deque.append``/``popleft`` are atomic, and trimming from the left drops the oldest
     entries, which is the drop-oldest policy a live video stream wants: an image stream keeps
-    its newest ``frame_queue`` frames; a video stream (h264 / h265 units, or anything on its
+    its newest ``frame_queue`` frames, and of those only the ones that arrived within
+    ``max_age_s`` when the loop takes one (unless it is the newest): a burst of work on the
+    worker (a session's start, a stream moving in) is absorbed without a drop, while a worker
+    that stays behind drops frames instead of falling behind by ``frame_queue`` frame periods
+    at a low frame rate; a video stream (h264 / h265 units, or anything on its
     CompressedVideo key) ``video_queue`` units, since each one must reach the decoder.
 
     Whatever the count, the queue also holds at most ``max_bytes`` (the larger of 32 MiB and
@@ -139,7 +143,7 @@ class Inbox:
 
     def __init__(self, key: str, video_key: str | None, image_queue: int, video_queue: int,
                  rate: float, max_payload: int, wake: threading.Event, metrics: Any,
-                 clock: StageClock | None = None) -> None:
+                 clock: StageClock | None = None, max_age_s: float = 0.0) -> None:
         self.key = key
         self.video_key = video_key
         #: bounded by ``limit`` and ``max_bytes``, trimmed on every append (no ``maxlen``: its
@@ -154,6 +158,9 @@ class Inbox:
         #: thread, read by the loop: a float assignment is atomic)
         self.arrived = 0.0
         self.max_bytes = max(32 << 20, 2 * (max_payload + 1024))
+        #: an image stream's frame older than this (ns since its arrival) is dropped when a
+        #: newer one waits; 0: off
+        self.max_age_ns = int(max_age_s * 1e9)
         self._bytes = 0
         self._lock = threading.Lock()  # the byte count is shared with the loop's pops
         self.bucket = TokenBucket(rate)
@@ -226,6 +233,12 @@ class Inbox:
         with self._lock:
             if not self.frames:
                 return None
+            if self.max_age_ns and self.limit != self.video_queue:
+                oldest = time.time_ns() - self.max_age_ns
+                while len(self.frames) > 1 and self.frames[0][1] < oldest:
+                    # the oldest goes, as when the queue is full: counted, a gap in the numbers
+                    self._bytes -= len(self.frames.popleft()[0])
+                    self.trimmed += 1
             item = self.frames.popleft()
             self._bytes -= len(item[0])
             return item

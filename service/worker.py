@@ -342,7 +342,8 @@ class Worker:
         cfg = self.settings
         video_key = cfg.video_key.replace("{stream}", stream_id) if cfg.video_key else None
         inbox = Inbox(self.keys.frames(stream_id), video_key, cfg.frame_queue, cfg.video_queue,
-                      cfg.max_stream_fps, cfg.max_payload, self.wake, self.metrics, self.clock)
+                      cfg.max_stream_fps, cfg.max_payload, self.wake, self.metrics, self.clock,
+                      cfg.max_frame_age_ms / 1e3)
         sub = self.session.declare_subscriber(self.keys.frames(stream_id), inbox)
         errors = self.session.declare_publisher(
             self.keys.errors(stream_id), congestion_control=self.zenoh.CongestionControl.DROP)

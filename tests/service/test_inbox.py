@@ -4,9 +4,11 @@ count that depends on the stream's kind and within a byte cap whatever the count
 from __future__ import annotations
 
 import threading
+import time
+from collections import deque
 from types import SimpleNamespace
 
-from arcf.schemas import Frame, encode
+from arcf.schemas import Frame, decode, encode
 from arcf.service.intake import Inbox
 
 KEY = "arcf/v1/streams/cam/frames"
@@ -57,6 +59,32 @@ def test_an_image_stream_keeps_its_newest_frames_a_video_stream_every_unit() -> 
         put(box, VIDEO_KEY, b"cdr")
     assert len(box.frames) == 60  # video_queue
     assert [item[3] for item in box.frames] == list(range(10, 70))  # numbered on arrival
+
+
+def test_frames_too_old_when_their_turn_comes_give_way_to_newer_ones() -> None:
+    """``max_age_s``: of an image stream's queued frames, those that arrived longer ago than
+    the bound are dropped (counted as trimmed) when a newer one waits; the newest is always
+    taken, however old; a video stream's units are all kept."""
+    box = Inbox(KEY, VIDEO_KEY, 4, 60, 1e9, 1 << 20, threading.Event(), METRICS,
+                max_age_s=0.2)
+    for i in range(4):
+        put(box, KEY, frame(i, "jpeg"))
+    now = time.time_ns()
+    # frames 0 and 1 arrived 0.5 s ago, frame 2 0.1 s ago, frame 3 now
+    ages = [0.5, 0.5, 0.1, 0.0]
+    box.frames = deque((data, now - int(age * 1e9), source, seq)
+                       for (data, _, source, seq), age in zip(box.frames, ages, strict=True))
+    taken = [decode(box.pop()[0], expected=Frame).seq for _ in range(2)]  # type: ignore[index]
+    assert taken == [2, 3] and box.trimmed == 2 and box.pop() is None
+    # alone, a frame is taken whatever its age
+    put(box, KEY, frame(9, "jpeg"))
+    box.frames = deque([(d, now - 10**10, src, q) for d, _, src, q in box.frames])
+    assert decode(box.pop()[0], expected=Frame).seq == 9  # type: ignore[index]
+    # video units are never dropped for their age: each one is needed to decode the next
+    for i in range(3):
+        put(box, KEY, frame(10 + i, "h264"))
+    box.frames = deque([(d, now - 10**10, src, q) for d, _, src, q in box.frames])
+    assert len([box.pop() for _ in range(3)]) == 3 and box.trimmed == 2
 
 
 def test_a_flood_of_huge_units_stays_within_the_byte_cap() -> None:
