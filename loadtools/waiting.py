@@ -20,6 +20,21 @@ def wait_until(condition: Any, timeout: float = 10.0, what: str = "condition") -
         time.sleep(0.02)
 
 
+def next_result(results: Any, after_seq: int = -1, timeout: float = 60.0) -> Any:
+    """The next result about a frame after ``after_seq`` from a result stream (the client
+    SDK's ``results``), stale notices skipped (a loaded machine may pause between frames
+    longer than the service's ``stale_after_s``); AssertionError after ``timeout`` seconds."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        try:
+            r = results.get(timeout=1.0)
+        except Exception:  # queue.Empty
+            continue
+        if r.status != "stale" and r.frame_seq is not None and r.frame_seq > after_seq:
+            return r
+    raise AssertionError(f"no result after frame {after_seq} within {timeout:.0f} s")
+
+
 class Arrivals(Generic[T]):
     """What a callback receives on another thread (a subscription's messages), in arrival
     order, with a wait that wakes on each arrival instead of polling.

@@ -20,7 +20,7 @@ from arcf.client import ServiceError, TrackingClient
 from arcf.data import data_root
 from arcf.eval import load_dataset
 from arcf.loadtools.procs import ServiceProcess, worker_pids
-from arcf.loadtools.waiting import wait_until
+from arcf.loadtools.waiting import next_result, wait_until
 from arcf.schemas import ErrorMessage, KeySpace, decode
 from arcf.service.scrape import by_label, fetch
 
@@ -33,19 +33,6 @@ pytestmark = [pytest.mark.integration,
 #: nearly always on one of the stream's frames when it is killed; the service's
 #: max_stream_fps is raised above it (``FEED_FPS`` frames would otherwise be refused)
 FEED_FPS = 200
-
-
-def _next_result(results, after_seq: int, timeout: float) -> object:
-    """The stream's next result about a frame after ``after_seq`` (stale notices skipped)."""
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        try:
-            r = results.get(timeout=1.0)
-        except Exception:  # queue.Empty
-            continue
-        if r.status != "stale" and r.frame_seq is not None and r.frame_seq > after_seq:
-            return r
-    raise AssertionError(f"no result after frame {after_seq} within {timeout:.0f} s")
 
 
 def test_a_stream_whose_frames_workers_die_on_twice_is_quarantined() -> None:
@@ -82,11 +69,11 @@ def test_a_stream_whose_frames_workers_die_on_twice_is_quarantined() -> None:
             last, kills, statuses = -1, 0, []
             # a death between two frames strikes nobody: kill until two struck (bounded)
             while strikes() < 2 and kills < 8:
-                r = _next_result(results, last, timeout=180)  # running (again)
+                r = next_result(results, last, timeout=180)  # running (again)
                 statuses.append(r.status)
                 last = r.frame_seq
                 for _ in range(3):  # a few frames in: the worker is busy with them
-                    last = _next_result(results, last, timeout=60).frame_seq
+                    last = next_result(results, last, timeout=60).frame_seq
                 (pid,) = worker_pids(svc.proc.pid)
                 os.kill(pid, signal.SIGSEGV)
                 kills += 1
@@ -118,7 +105,7 @@ def test_a_stream_whose_frames_workers_die_on_twice_is_quarantined() -> None:
             wait_until(cool_started, timeout=180, what="a start on another stream")
             cool = client.results("cool")
             client.publish_frame("cool", data=data[0], seq=0)
-            assert _next_result(cool, -1, timeout=60).frame_seq == 0
+            assert next_result(cool, -1, timeout=60).frame_seq == 0
             sub.undeclare()
         control = by_label(fetch(svc.metrics_url), "arcf_control_requests_total", "outcome")
         assert control.get("quarantined") == 1  # the refused start, counted

@@ -4,8 +4,6 @@ result, and the results equal the library's offline, bit for bit, across the mov
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 import pytest
 
@@ -17,6 +15,7 @@ from arcf.client.media.images import decode_compressed
 from arcf.data import data_root
 from arcf.eval import load_dataset
 from arcf.loadtools.procs import ServiceProcess
+from arcf.loadtools.waiting import next_result
 from arcf.service.scrape import by_label, fetch
 
 pytestmark = [pytest.mark.integration,
@@ -29,20 +28,6 @@ STREAMS = ("move-0", "move-1")
 def _moves(svc: ServiceProcess) -> dict[str, float]:
     assert svc.metrics_url is not None
     return by_label(fetch(svc.metrics_url), "arcf_stream_moves_total", "outcome")
-
-
-def _next_result(stream, timeout: float = 60.0):  # type: ignore[no-untyped-def]
-    """The next result about a frame (stale notices skipped: a loaded machine may pause
-    between frames longer than stale_after_s)."""
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        try:
-            r = stream.get(timeout=1.0)
-        except Exception:  # queue.Empty
-            continue
-        if r.status != "stale":
-            return r
-    raise AssertionError(f"no result within {timeout} s")
 
 
 def test_streams_move_between_workers_and_their_results_do_not_change() -> None:
@@ -68,7 +53,7 @@ def test_streams_move_between_workers_and_their_results_do_not_change() -> None:
                 for s in STREAMS:
                     client.publish_frame(s, data=data[sent], seq=sent)
                 for s in STREAMS:
-                    got[s].append(_next_result(queues[s]))
+                    got[s].append(next_result(queues[s], sent - 1))
                 sent += 1
                 if sent % 10 == 0 and _moves(svc).get("moved", 0) >= 2 and sent >= 60:
                     break
