@@ -408,6 +408,9 @@ class Worker:
             raise _CommandRefused(ErrorCode.INVALID_REQUEST,
                                   f"stream {stream_id!r} was not prepared here")
         state = handoff.unpack(payload)
+        if not state.sessions:  # all ended on the old worker while it finished its frames
+            self._drop_stream(stream)
+            return
         stream.numbering = state.numbering
         stream.handed_through = state.numbering.last
         for st in state.sessions:
