@@ -14,9 +14,12 @@ sessions by itself (idle, unusable box, over budget); :class:`SessionStats` ever
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 from .placement import StreamLoad
+
+if TYPE_CHECKING:
+    from .handoff import StreamState
 
 
 @dataclass(frozen=True)
@@ -68,7 +71,7 @@ class PrepareStream:
 @dataclass(frozen=True)
 class ReleaseStream:
     """Hand a stream over: stop receiving it, track the frames already received, and answer
-    with its sessions' state (``Confirmation.payload``) for the worker that adopts it."""
+    with its sessions' state (``Confirmation.state``) for the worker that adopts it."""
 
     stream_id: str
     reply_id: str | None = None
@@ -76,11 +79,11 @@ class ReleaseStream:
 
 @dataclass(frozen=True)
 class AdoptStream:
-    """Run a prepared stream's sessions from the state another worker released (``payload``);
+    """Run a prepared stream's sessions from the state another worker released (``state``);
     None drops the preparation (the release failed)."""
 
     stream_id: str
-    payload: bytes | None
+    state: StreamState | None
     reply_id: str | None = None
 
 
@@ -97,8 +100,9 @@ class Confirmation:
     ok: bool
     message: str = ""
     code: str | None = None
-    #: what the command gives back (a released stream's state)
-    payload: bytes | None = None
+    #: what the command gives back: a released stream's state (carried, like every command,
+    #: by the queues between the instance's own processes)
+    state: StreamState | None = None
 
 
 @dataclass(frozen=True)

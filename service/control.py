@@ -63,6 +63,7 @@ from .commands import (
     StartSession,
     StopSession,
 )
+from .handoff import StreamState
 from .placement import LoadBook, Move
 from .settings import ServiceSettings
 from .supervision import Strikes
@@ -188,10 +189,10 @@ class ControlPlane:
             with self.lock:
                 waiter = self._waiting.pop(item.reply_id, None)
             if waiter is not None:
-                waiter[1].extend((item.ok, item.message, item.code, item.payload))
+                waiter[1].extend((item.ok, item.message, item.code, item.state))
                 waiter[0].set()
 
-    def _forward(self, worker: int, cmd: Command) -> bytes | None:
+    def _forward(self, worker: int, cmd: Command) -> StreamState | None:
         """Send a command to its worker and wait until the worker has applied it; what the
         worker gave back (a released stream's state), if anything."""
         if self.responses is None:
@@ -213,7 +214,7 @@ class ControlPlane:
             if slot[2]:  # refused for the request's own fault
                 raise _Refused(ErrorCode(slot[2]), slot[1])
             raise _Refused(ErrorCode.INTERNAL, f"worker {worker} failed: {slot[1]}")
-        return cast("bytes | None", slot[3])
+        return cast("StreamState | None", slot[3])
 
     def _ended(self, item: SessionsEnded) -> None:
         """A worker ended sessions by itself (idle, unusable box, over budget): they are gone
@@ -488,14 +489,14 @@ class ControlPlane:
                                    f"stream {stream_id!r} does not run on worker {source}")
             self._forward(target, PrepareStream(stream_id))
             try:
-                payload = self._forward(source, ReleaseStream(stream_id))
-                if payload is None:
+                state = self._forward(source, ReleaseStream(stream_id))
+                if state is None:
                     raise _Refused(ErrorCode.INTERNAL, "the released stream came without state")
             except _Refused:
                 self._call_off(target, stream_id)
                 raise
             try:
-                self._forward(target, AdoptStream(stream_id, payload))
+                self._forward(target, AdoptStream(stream_id, state))
             except _Refused as exc:
                 log.error("stream %s lost its sessions in a move: %s", stream_id, exc.message)
                 self._call_off(target, stream_id)

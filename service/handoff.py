@@ -9,14 +9,14 @@ declares its own. Trackers that cannot be pickled (OpenCV's networks) make a str
 unmovable; video streams are not moved either (the new worker's decoder would wait for the
 next keyframe, and the frames until then would get no result).
 
-The bytes only travel between the processes of one instance (over the queues of
-``multiprocessing``, which pickle anyway): never from the network.
+The state travels as the commands do, between the processes of one instance over the queues
+of ``multiprocessing`` (which pickle what they carry): never from the network.
 """
 
 from __future__ import annotations
 
-import pickle
 from dataclasses import dataclass
+from multiprocessing.reduction import ForkingPickler
 from typing import Any
 
 from .intake import Numbering
@@ -59,10 +59,11 @@ class StreamState:
 
 
 def portable(tracker: Any) -> bool:
-    """Whether a tracker's state can be handed over (pickled)."""
+    """Whether a tracker's state can be handed over: whether the queues between the
+    instance's processes can carry it."""
     try:
-        pickle.dumps(tracker, protocol=pickle.HIGHEST_PROTOCOL)
-    except (TypeError, pickle.PicklingError, AttributeError):
+        ForkingPickler.dumps(tracker)
+    except Exception:  # TypeError, PicklingError, ...: whatever the pickler refuses
         return False
     return True
 
@@ -80,15 +81,7 @@ def movable(stream: Stream) -> bool:
     return True
 
 
-def pack(stream: Stream) -> bytes:
-    """The stream's state as bytes for :func:`unpack`."""
-    state = StreamState(stream.stream_id, stream.numbering,
-                        tuple(SessionState.of(s) for s in stream.sessions.values()))
-    return pickle.dumps(state, protocol=pickle.HIGHEST_PROTOCOL)
-
-
-def unpack(payload: bytes) -> StreamState:
-    state = pickle.loads(payload)
-    if not isinstance(state, StreamState):
-        raise TypeError(f"not a stream's state: {type(state).__name__}")
-    return state
+def pack(stream: Stream) -> StreamState:
+    """The stream's state, for the worker that adopts it."""
+    return StreamState(stream.stream_id, stream.numbering,
+                       tuple(SessionState.of(s) for s in stream.sessions.values()))

@@ -254,8 +254,8 @@ class Worker:
     def _apply(self, cmd: Command) -> None:
         """Apply one command and confirm it, so the control plane's ack means "in effect"."""
         try:
-            payload = self._apply_command(cmd)
-            reply = Confirmation(cmd.reply_id or "", True, payload=payload)
+            state = self._apply_command(cmd)
+            reply = Confirmation(cmd.reply_id or "", True, state=state)
         except _CommandRefused as exc:
             reply = Confirmation(cmd.reply_id or "", False, str(exc), exc.code.value)
         except Exception as exc:  # reported to the requester, never fatal to the worker
@@ -264,7 +264,7 @@ class Worker:
         if cmd.reply_id is not None:
             self.responses.put(reply)
 
-    def _apply_command(self, cmd: Command) -> bytes | None:
+    def _apply_command(self, cmd: Command) -> handoff.StreamState | None:
         """Apply ``cmd``; what it gives back (a released stream's state), if anything."""
         if isinstance(cmd, StartSession):
             self._start(cmd)
@@ -290,7 +290,7 @@ class Worker:
         elif isinstance(cmd, ReleaseStream):
             return self._release(cmd.stream_id)
         elif isinstance(cmd, AdoptStream):
-            self._adopt(cmd.stream_id, cmd.payload)
+            self._adopt(cmd.stream_id, cmd.state)
         else:
             raise TypeError(f"unknown worker command {cmd!r}")
         return None
@@ -368,7 +368,7 @@ class Worker:
         self.prepared[stream_id] = self._declare_stream(stream_id)
         self._sync_with_router()
 
-    def _release(self, stream_id: str) -> bytes:
+    def _release(self, stream_id: str) -> handoff.StreamState:
         """Stop receiving a stream, track the frames it already sent here, and give its
         sessions' state away (they end here without a last result: they go on elsewhere)."""
         stream = self.table.streams.get(stream_id)
@@ -391,23 +391,22 @@ class Worker:
             stream.video_subscriber = _Undeclared()
         while (item := stream.inbox.pop()) is not None:
             self._process(stream, *item)
-        payload = handoff.pack(stream)
+        state = handoff.pack(stream)
         for sid in list(stream.sessions):
             self._stop(sid)
-        return payload
+        return state
 
-    def _adopt(self, stream_id: str, payload: bytes | None) -> None:
+    def _adopt(self, stream_id: str, state: handoff.StreamState | None) -> None:
         """Run a prepared stream's sessions from the state released elsewhere (None: the move
         was called off, the preparation is dropped)."""
         stream = self.prepared.pop(stream_id, None)
-        if payload is None:
+        if state is None:
             if stream is not None:
                 self._drop_stream(stream)
             return
         if stream is None:
             raise _CommandRefused(ErrorCode.INVALID_REQUEST,
                                   f"stream {stream_id!r} was not prepared here")
-        state = handoff.unpack(payload)
         if not state.sessions:  # all ended on the old worker while it finished its frames
             self._drop_stream(stream)
             return

@@ -4,6 +4,7 @@ worker's parts to another's, bit for bit (:mod:`arcf.service.handoff`)."""
 
 from __future__ import annotations
 
+import pickle
 from typing import Any
 
 import cv2
@@ -11,7 +12,7 @@ import pytest
 
 from arcf.schemas import Result, decode
 from arcf.service import metrics
-from arcf.service.handoff import movable, pack, unpack
+from arcf.service.handoff import StreamState, movable, pack
 from arcf.service.intake import Numbering
 from arcf.service.placement import LoadBook, StreamLoad, place
 from arcf.service.stages import StageClock
@@ -93,8 +94,9 @@ def _stream() -> Stream:
 
 def test_a_stream_handed_over_gives_the_results_it_would_have_given(
         wakeboard7: Any) -> None:
-    """Half of wakeboard7 on one stream, then its state packed and unpacked (as a move does
-    between workers), and the rest: every result equals an unmoved stream's."""
+    """Half of wakeboard7 on one stream, then its state packed and carried to another
+    process's stream (as a move does between workers), and the rest: every result equals an
+    unmoved stream's."""
     from arcf import create_tracker
     from arcf.service.tracking import Tracking
 
@@ -112,7 +114,9 @@ def test_a_stream_handed_over_gives_the_results_it_would_have_given(
             if seq == move_at:
                 assert movable(stream)
                 sent += stream.sessions["s"].publisher.sent
-                state = unpack(pack(stream))
+                # as the queues between the instance's processes carry it
+                state = pickle.loads(pickle.dumps(pack(stream)))
+                assert isinstance(state, StreamState)
                 stream = _stream()
                 stream.numbering = state.numbering
                 (st,) = state.sessions
