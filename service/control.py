@@ -487,8 +487,8 @@ class ControlPlane:
                 if not sids or any(self.sessions[s].worker != source for s in sids):
                     raise _Refused(ErrorCode.INVALID_REQUEST,
                                    f"stream {stream_id!r} does not run on worker {source}")
-            self._forward(target, PrepareStream(stream_id))
             try:
+                self._forward(target, PrepareStream(stream_id))
                 state = self._forward(source, ReleaseStream(stream_id))
                 if state is None:
                     raise _Refused(ErrorCode.INTERNAL, "the released stream came without state")
