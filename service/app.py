@@ -139,18 +139,16 @@ class Service:
 
     def _serve_a_start(self, timeout: float) -> float:
         """Start a session through the service's own control key, as a station does (on a
-        stream of this instance's, ``_ready-<instance>-<k>``), end it, and return how long
-        the start took. Ready is announced only after it: a worker's token says it runs, not
-        that a start reaches it through the router, the control plane and back."""
+        stream only this instance answers for, ``_ready-<instance>-0``), end it, and return
+        how long the start took. Ready is announced only after it: a worker's token says it
+        runs, not that a start reaches it through the router, the control plane and back."""
         from arcf.client import ServiceError, TrackingClient
 
-        from .control import READINESS_PREFIX
+        from .control import readiness_stream
 
         s = self.settings
         client = TrackingClient(session=self.session, prefix=s.prefix, tie_sessions=False)
-        stream = next(name for name in (f"{READINESS_PREFIX}{s.instance_id}-{k}"
-                                        for k in range(10_000))
-                      if self.cluster.mine(name))
+        stream = readiness_stream(s.instance_id)
         t0 = time.monotonic()
         while True:
             try:

@@ -85,6 +85,18 @@ Reply = Ack | Status | Presets
 READINESS_PREFIX = "_ready-"
 
 
+def readiness_stream(instance_id: str) -> str:
+    """The stream of an instance's readiness check."""
+    return f"{READINESS_PREFIX}{instance_id}-0"
+
+
+def readiness_instance(stream_id: str) -> str | None:
+    """The instance whose readiness check runs on ``stream_id`` (None: a station's stream)."""
+    if not stream_id.startswith(READINESS_PREFIX):
+        return None
+    return stream_id[len(READINESS_PREFIX):].rpartition("-")[0]
+
+
 @dataclass
 class SessionRecord:
     session_id: str
@@ -542,7 +554,7 @@ class ControlPlane:
             metrics.ERRORS.labels(kind=exc.code.value).inc()
             return encode(ErrorMessage(code=exc.code.value, message=str(exc)))
         kind = request.type  # the wire name: start, reinit, stop, status_request, ...
-        if not self._mine(self._responder_key(request)):
+        if not self._answers(request):
             return None
         try:
             with self.op_lock:  # serialised with rebalancing (see __init__)
@@ -600,6 +612,16 @@ class ControlPlane:
                                       choices=list(t.choices) if t.choices else None)
                         for k, t in wire.items()],
             refused=refused, refusal=refusal)
+
+    def _answers(self, request: Request) -> bool:
+        """Whether this instance answers ``request``. A readiness check is answered by the
+        instance it checks, whatever the ownership: instances starting side by side can each
+        see a different live set for a moment, and a check served elsewhere would leave a
+        session there that nothing ends."""
+        checked = readiness_instance(getattr(request, "stream_id", None) or "")
+        if checked is not None:
+            return checked == self.settings.instance_id
+        return self._mine(self._responder_key(request))
 
     def _responder_key(self, request: Request) -> str:
         """What decides which instance answers: the stream, when the request names one or its

@@ -106,3 +106,31 @@ def test_a_presets_request_checks_a_start_as_a_start_is_checked() -> None:
         if start is not None:  # the start itself gets the same answer
             assert start.type == "error" and start.code is code and start.message == refusal
     assert worker.starts == 0 and plane.sessions == {}
+
+
+def test_a_readiness_check_is_answered_by_the_instance_it_checks_only() -> None:
+    """Instances starting side by side can each see a different live set: a readiness check
+    answered by whichever instance thinks it owns the stream would leave a session there that
+    nothing ends (it is in no registry)."""
+    from arcf.schemas import KeySpace
+    from arcf.service.cluster import Cluster, owner
+    from arcf.service.control import readiness_instance, readiness_stream
+
+    # one id the prefix of another, and one's check owned by the other by hash
+    ids = next(ids for ids in ([f"inst-{k}", f"inst-{k}-2"] for k in range(1000))
+               if any(owner(readiness_stream(i), ids) != i for i in ids))
+    checked = next(i for i in ids if owner(readiness_stream(i), ids) != i)
+    other = next(i for i in ids if i != checked)
+    planes = {}
+    for i in ids:
+        cluster = Cluster(session=None, keys=KeySpace(), instance_id=i)
+        cluster.members = set(ids)
+        planes[i], _ = _plane(instance_id=i)
+        planes[i].cluster = cluster
+    assert readiness_instance(readiness_stream(checked)) == checked
+    request = encode(StartRequest(request_id="r", stream_id=readiness_stream(checked),
+                                  box=[1, 1, 5, 5], preset="bacf"))
+    assert planes[other].handle(request) is None  # the stream's owner by hash stays silent
+    reply = planes[checked].handle(request)
+    assert reply is not None and decode(reply).type == "ack"
+    assert planes[checked].end_readiness_checks() == 1
