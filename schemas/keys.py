@@ -118,6 +118,14 @@ KEY_ROUTES: tuple[KeyRoute, ...] = (
         ("session_spec",),
     ),
     KeyRoute(
+        "boxes",
+        "<prefix>/boxes/<instance>/<worker>",
+        "service puts",
+        "the last box of every session a worker runs, at a bounded rate, so that a surviving "
+        "instance resumes them from there (instances follow these, not every result)",
+        ("last_boxes",),
+    ),
+    KeyRoute(
         "clients",
         "<prefix>/clients/<client>",
         "ground station liveliness tokens (optional)",
@@ -235,6 +243,15 @@ class KeySpace:
     def registry_all(self) -> str:
         """``<prefix>/registry/*``: every running session's spec."""
         return f"{self.prefix}/registry/*"
+
+    def last_boxes(self, instance: str, worker: str) -> str:
+        """``<prefix>/boxes/<instance>/<worker>``: its sessions' last boxes."""
+        return (f"{self.prefix}/boxes/{check_id(instance, 'instance id')}/"
+                f"{check_id(worker, 'worker id')}")
+
+    def all_last_boxes(self) -> str:
+        """``<prefix>/boxes/*/*``: every worker's sessions' last boxes."""
+        return f"{self.prefix}/boxes/*/*"
 
     # -- parsers -------------------------------------------------------------------------------
 

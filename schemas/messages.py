@@ -59,6 +59,8 @@ __all__ = [
     "ErrorCode",
     "ErrorMessage",
     "Frame",
+    "LastBox",
+    "LastBoxes",
     "Message",
     "OpenModel",
     "ParameterInfo",
@@ -667,6 +669,33 @@ class SessionSpec(Message):
     last_box: Box | None = Field(default=None, description="Box of the last result.")
 
 
+#: ``last_boxes`` lists at most this many sessions (those of one worker: ``max_sessions``
+#: bounds them far below)
+MAX_LAST_BOXES = 4096
+
+
+class LastBox(WireModel):
+    """One session's last published box (inside ``last_boxes``)."""
+
+    session_id: Id
+    frame_seq: NonNegInt
+    box: Box
+
+
+class LastBoxes(Message):
+    """The last box of every session one worker runs, put on
+    ``<prefix>/boxes/<instance>/<worker>`` at a bounded rate (``last_box_period_ms``) when one
+    changed: what another instance resumes a session from if this one dies. Instances follow
+    these instead of every result, so what each receives to take over grows with the
+    sessions, not with the frames they track."""
+
+    type: ClassVar[str] = "last_boxes"
+
+    instance_id: Id
+    worker: NonNegInt
+    boxes: list[LastBox] = Field(max_length=MAX_LAST_BOXES)
+
+
 class Status(Reply):
     """Reply to ``status_request``: what the service runs (every instance, when several share
     the streams; ``instance_id`` is the one that answered)."""
@@ -750,5 +779,6 @@ MESSAGE_TYPES: dict[str, type[Message]] = {
         Status,
         Presets,
         SessionSpec,
+        LastBoxes,
     )
 }

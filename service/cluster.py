@@ -12,8 +12,11 @@ Zenoh is the fabric; nothing here is a broker. Three Zenoh mechanisms carry it:
   left, or a fair share to the one that joined.
 * **Session registry**: the owner of a session puts its spec (stream, preset, overrides, box)
   on ``<prefix>/registry/<session>`` and deletes it when the session stops; every instance
-  subscribes, and every instance follows every session's results, keeping the last published
-  box. When an owner dies, the new owner resumes its sessions from that box on the next frame.
+  subscribes. Each worker puts the last box of every session it runs on
+  ``<prefix>/boxes/<instance>/<worker>`` at a bounded rate (``last_box_period_ms``), and every
+  instance follows those: what an instance receives to take over grows with the sessions, not
+  with the frames they track (it followed every result before). When an owner dies, the new
+  owner resumes its sessions from the last box it heard of on the next frame.
   A joining instance asks the others for their registry (a query on ``<prefix>/registry/*``)
   before it announces itself.
 """
@@ -24,12 +27,25 @@ import hashlib
 import logging
 import math
 import threading
+from collections import OrderedDict
 from collections.abc import Callable, Iterable
 from typing import Any
 
-from arcf.schemas import MAX_BOX_COORD, KeySpace, Result, SchemaError, SessionSpec, decode, encode
+from arcf.schemas import (
+    MAX_BOX_COORD,
+    KeySpace,
+    LastBoxes,
+    SchemaError,
+    SessionSpec,
+    decode,
+    encode,
+)
 
 log = logging.getLogger(__name__)
+
+#: boxes of not-yet-registered sessions kept at most (a worker's readiness check's session is
+#: never registered: its box waits here until newer ones push it out)
+EARLY_BOXES = 4096
 
 
 def weight(key: str, member: str | int) -> int:
@@ -71,6 +87,10 @@ class Cluster:
         self.specs: dict[str, SessionSpec] = {}
         #: session -> (frame_seq, box) of its last result with a box
         self.last: dict[str, tuple[int, tuple[float, float, float, float]]] = {}
+        #: boxes of sessions whose spec has not arrived yet (a worker's first box can overtake
+        #: its owner's registry put); the oldest go first past ``EARLY_BOXES``
+        self.early: OrderedDict[str, tuple[int, tuple[float, float, float, float]]] = \
+            OrderedDict()
         self.joined = False
         self._changed = threading.Event()
         self._closing = False
@@ -82,14 +102,15 @@ class Cluster:
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
-        """Follow the registry and the results, fetch the others' registry, but do not join
-        yet: the instance announces itself (:meth:`join`) once its workers are ready."""
+        """Follow the registry and the workers' last boxes, fetch the others' registry, but do
+        not join yet: the instance announces itself (:meth:`join`) once its workers are
+        ready."""
         import zenoh
 
         self._subs.append(self.session.declare_subscriber(self.keys.registry_all(),
                                                           self._on_registry))
-        self._subs.append(self.session.declare_subscriber(self.keys.all_results(),
-                                                          self._on_result))
+        self._subs.append(self.session.declare_subscriber(self.keys.all_last_boxes(),
+                                                          self._on_last_boxes))
         self._queryable = self.session.declare_queryable(self.keys.registry_all(),
                                                          self._on_registry_query)
         for reply in self.session.get(self.keys.registry_all(), timeout=2.0,
@@ -159,7 +180,7 @@ class Cluster:
     # ------------------------------------------------------------------ registry writes
     def publish(self, spec: SessionSpec) -> None:
         with self.lock:
-            self.specs[spec.session_id] = spec
+            self._registered(spec)
         self.session.put(self.keys.registry(spec.session_id), encode(spec))
 
     def withdraw(self, session_id: str) -> None:
@@ -201,11 +222,9 @@ class Cluster:
             log.warning("ignoring a malformed registry entry: %s", exc)
             return
         with self.lock:
-            self.specs[spec.session_id] = spec
+            self._registered(spec)
             if spec.last_seq is not None and spec.last_box is not None:
-                known = self.last.get(spec.session_id)
-                if known is None or known[0] < spec.last_seq:
-                    self.last[spec.session_id] = (spec.last_seq, spec.last_box)
+                self._keep(spec.session_id, (spec.last_seq, spec.last_box))
 
     def _on_registry_query(self, query: Any) -> None:
         """A joining instance asks what runs: every known session, with its last box."""
@@ -216,19 +235,42 @@ class Cluster:
                 spec = spec.model_copy(update={"last_seq": last[0], "last_box": last[1]})
             query.reply(self.keys.registry(spec.session_id), encode(spec))
 
-    def _on_result(self, sample: Any) -> None:
+    def _on_last_boxes(self, sample: Any) -> None:
         try:
-            r = decode(sample.payload.to_bytes(), expected=Result)
-        except SchemaError:
+            message = decode(sample.payload.to_bytes(), expected=LastBoxes)
+        except SchemaError as exc:
+            log.warning("ignoring malformed last boxes: %s", exc)
             return
-        if r.status.value == "error" or not usable_box(r.box):
-            return
+        self.note_boxes(message)
+
+    def note_boxes(self, message: LastBoxes) -> None:
+        """Keep each session's newest usable box of ``message`` (of a session not registered
+        yet, until its spec comes)."""
         with self.lock:
-            if r.session_id not in self.specs:
-                return
-            known = self.last.get(r.session_id)
-            if known is None or known[0] < r.frame_seq:
-                self.last[r.session_id] = (r.frame_seq, r.box)
+            for entry in message.boxes:
+                if not usable_box(entry.box):
+                    continue
+                if entry.session_id in self.specs:
+                    self._keep(entry.session_id, (entry.frame_seq, entry.box))
+                else:
+                    self.early[entry.session_id] = (entry.frame_seq, entry.box)
+                    self.early.move_to_end(entry.session_id)
+                    while len(self.early) > EARLY_BOXES:
+                        self.early.popitem(last=False)
+
+    def _keep(self, session_id: str,
+              last: tuple[int, tuple[float, float, float, float]]) -> None:
+        """``last`` as the session's last box if it is newer (call with ``lock`` held)."""
+        known = self.last.get(session_id)
+        if known is None or known[0] < last[0]:
+            self.last[session_id] = last
+
+    def _registered(self, spec: SessionSpec) -> None:
+        """``spec`` is known now: a box that came before it counts (call with ``lock``)."""
+        self.specs[spec.session_id] = spec
+        early = self.early.pop(spec.session_id, None)
+        if early is not None:
+            self._keep(spec.session_id, early)
 
     def _notify_loop(self) -> None:
         while True:

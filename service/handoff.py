@@ -36,11 +36,13 @@ class SessionState:
     last_result_ns: int | None
     cost_s: float
     tracked: int
+    last_box: tuple[int, tuple[float, float, float, float]] | None
 
     @classmethod
     def of(cls, s: Session) -> SessionState:
         return cls(s.session_id, s.preset, s.tracker, s.pending_box, s.pending_seq,
-                   s.pending_status, s.last_seq, s.frames, s.last_result_ns, s.cost_s, s.tracked)
+                   s.pending_status, s.last_seq, s.frames, s.last_result_ns, s.cost_s, s.tracked,
+                   s.last_box)
 
     def session(self, stream_id: str, publisher: Any) -> Session:
         """The session again, publishing through ``publisher``."""
@@ -48,7 +50,7 @@ class SessionState:
                        pending_box=self.pending_box, pending_seq=self.pending_seq,
                        pending_status=self.pending_status, last_seq=self.last_seq,
                        frames=self.frames, last_result_ns=self.last_result_ns,
-                       cost_s=self.cost_s, tracked=self.tracked)
+                       cost_s=self.cost_s, tracked=self.tracked, last_box=self.last_box)
 
 
 @dataclass(frozen=True)

@@ -122,6 +122,12 @@ class ServiceSettings:
         "counted in arcf_sessions_shed_total). Among equals nothing is shed: each stream "
         "keeps its newest frames and drops the rest (counted); a stream alone on its worker "
         "may use all of it. 0: off"))
+    last_box_period_ms: int = field(default=200, metadata=_about(
+        "each worker puts the last box of its sessions on <prefix>/boxes/<instance>/<worker> "
+        "at most this often (when one changed): the box another instance resumes a session "
+        "from when this one dies, at most this old plus a frame. Instances follow these, not "
+        "every result: what each receives grows with the sessions, not with their frame "
+        "rate"))
     balance_s: float = field(default=2.0, metadata=_about(
         "every this many seconds, the pool moves one stream from its busiest worker to a "
         "less busy one if that lowers the busiest worker's load (the CPU each stream used, "
@@ -204,6 +210,8 @@ class ServiceSettings:
                              f"{self.session_control!r}")
         if self.quarantine_after < 0 or not self.quarantine_s > 0:
             raise ValueError("quarantine_after must be >= 0 (0: never) and quarantine_s > 0")
+        if self.last_box_period_ms < 1:
+            raise ValueError("last_box_period_ms must be >= 1")
         if self.worker_max_rss_mb < 0:
             raise ValueError("worker_max_rss_mb must be >= 0 (0: off)")
         if self.balance_s < 0:

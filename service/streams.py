@@ -46,6 +46,9 @@ class Session:
     fresh_at: float = field(default_factory=time.monotonic)
     #: monotonic time of its last ``stale`` notice; None while its stream delivers
     stale_noticed: float | None = None
+    #: (frame_seq, box) of its last result with a usable box: what another instance resumes
+    #: it from (put on the worker's ``boxes`` key at ``last_box_period_ms``)
+    last_box: tuple[int, tuple[float, float, float, float]] | None = None
     #: whether its tracker's state can move to another worker (checked once, when asked:
     #: :func:`arcf.service.handoff.movable`)
     portable: bool | None = None

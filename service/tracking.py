@@ -18,6 +18,7 @@ from arcf import ARCFError
 from arcf.region import whole_frame
 from arcf.schemas import ErrorCode, Result, encode
 
+from .cluster import usable_box
 from .pipeline import count_extent
 from .stages import StageClock
 from .streams import Picture, Session, Stream, read_region
@@ -121,6 +122,8 @@ class Tracking:
             if picture.capture_ts_ns > 0:
                 m.END_TO_END.observe(max(published - picture.capture_ts_ns, 0) / 1e9)
             clock.since("metrics", c1)
+            if r is not None and status != "error" and usable_box(r.box):
+                s.last_box = (picture.seq, r.box)
             s.last_activity, s.last_result_ns = time.monotonic(), published
             s.fresh_at, s.stale_noticed = s.last_activity, None  # no longer stale
             if unusable_box:  # no tracker to run: the session ends, saying so

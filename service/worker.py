@@ -27,6 +27,8 @@ from arcf.client.transport import LOG_FORMAT
 from arcf.schemas import (
     ErrorCode,
     KeySpace,
+    LastBox,
+    LastBoxes,
     Result,
     encode,
 )
@@ -104,6 +106,12 @@ class Worker:
         self.instance_watch = self.session.liveliness().declare_subscriber(
             self.keys.instance_token(settings.instance_id), self._on_instance_token)
         self.table = SessionTable()
+        #: the sessions' last boxes, put at ``last_box_period_ms`` when one changed
+        self.boxes = self.session.declare_publisher(
+            self.keys.last_boxes(settings.instance_id, str(index)),
+            congestion_control=zenoh.CongestionControl.DROP)
+        self.boxes_put: dict[str, int] = {}
+        self.boxes_due = 0.0
         #: streams about to move here: subscribed, their frames queued until adopted
         self.prepared: dict[str, Stream] = {}
         self.busy = metrics.BUSY.labels(worker=str(index))
@@ -180,6 +188,22 @@ class Worker:
                          self.index, n.session.session_id, n.session.stream_id, n.silent_s)
             self._publish_notice(n.session, "stale", n.why, ErrorCode.NO_FRAMES)
         return due
+
+    def _put_last_boxes(self) -> bool:
+        """Every session's last box, if one changed since the last put (a full list each
+        time: one lost message costs nothing but a period); whether it put them. The first
+        change after a quiet spell goes at once: a session's first box is known elsewhere as
+        soon as it is published."""
+        boxes = {s.session_id: s.last_box for s in self.table if s.last_box is not None}
+        seqs = {sid: last[0] for sid, last in boxes.items()}
+        if seqs == self.boxes_put:
+            return False
+        self.boxes.put(encode(LastBoxes(
+            instance_id=self.settings.instance_id, worker=self.index,
+            boxes=[LastBox(session_id=sid, frame_seq=seq, box=box)
+                   for sid, (seq, box) in boxes.items()])))
+        self.boxes_put = seqs
+        return True
 
     def _end(self, s: Session, reason: str, code: ErrorCode) -> None:
         """End a session by the service's own decision: its last result says why, the
@@ -523,6 +547,8 @@ class Worker:
                         log.warning("worker %d: a frame of stream %s took %.0f ms", self.index,
                                     stream.stream_id, 1e3 * spent)
                 now = time.monotonic()
+                if now >= self.boxes_due and self._put_last_boxes():
+                    self.boxes_due = now + self.settings.last_box_period_ms / 1e3
                 if now >= self.stale_due:
                     self.stale_due = self._check_stale(now)
                 if now - t_window >= 1.0:
@@ -546,6 +572,7 @@ class Worker:
             self._drop_stream(stream)
         for s in self.table:
             self._stop(s.session_id)
+        self.boxes.undeclare()
         self.token.undeclare()
         self.session.close()
 

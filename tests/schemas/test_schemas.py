@@ -24,6 +24,8 @@ from arcf.schemas import (
     InvalidKey,
     InvalidMessage,
     KeySpace,
+    LastBox,
+    LastBoxes,
     MalformedMessage,
     Message,
     OversizedPayload,
@@ -126,6 +128,11 @@ def samples() -> dict[str, Message]:
             frame_seq=0,
             last_seq=41,
             last_box=(131.5, 84.25, 41.0, 30.5),
+        ),
+        "last_boxes": LastBoxes(
+            instance_id="host-a.1",
+            worker=0,
+            boxes=[LastBox(session_id="s1", frame_seq=41, box=(131.5, 84.25, 41.0, 30.5))],
         ),
     }
 
@@ -368,7 +375,7 @@ def test_what_the_service_sends_may_gain_fields_that_older_stations_ignore() -> 
     raw["sessions"][0]["added_later"] = 1  # nested models of a reply too
     assert decode(msgpack.packb(raw)) == samples()["status"]
     for kind in ("frame", "start", "reinit", "stop", "status_request", "presets_request",
-                 "session_spec"):
+                 "session_spec", "last_boxes"):
         raw = {**wire(samples()[kind]), "added_in_a_later_release": 1}
         with pytest.raises(InvalidMessage):
             decode(msgpack.packb(raw))

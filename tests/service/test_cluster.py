@@ -6,8 +6,8 @@ from __future__ import annotations
 from types import SimpleNamespace
 from typing import Any
 
-from arcf.schemas import KeySpace, Result, SessionSpec, decode, encode
-from arcf.service.cluster import Cluster, owner, usable_box
+from arcf.schemas import KeySpace, LastBox, LastBoxes, SessionSpec, decode, encode
+from arcf.service.cluster import EARLY_BOXES, Cluster, owner, usable_box
 
 STREAMS = [f"cam-{k}" for k in range(3000)]
 
@@ -49,12 +49,10 @@ class _Query:
         self.replies.append((key, payload))
 
 
-def _result(session: str, seq: int, box: tuple[float, ...], status: str = "tracking") -> Any:
-    r = Result(session_id=session, stream_id="cam", frame_seq=seq, capture_ts_ns=1, box=box,
-               peak=0.5, psr=9.0, aberrance=0.1, aberrance_release=0.1, scale=1.0,
-               status=status, dropped=0, received_ts_ns=1, decode_s=0.0, track_s=0.0,
-               published_ts_ns=1)
-    return SimpleNamespace(payload=SimpleNamespace(to_bytes=lambda: encode(r)))
+def _boxes(*entries: tuple[str, int, tuple[float, ...]], worker: int = 0) -> Any:
+    m = LastBoxes(instance_id="a", worker=worker, boxes=[
+        LastBox(session_id=sid, frame_seq=seq, box=box) for sid, seq, box in entries])
+    return SimpleNamespace(payload=SimpleNamespace(to_bytes=lambda: encode(m)))
 
 
 def test_registry_keeps_the_last_usable_box_and_answers_joiners_with_it() -> None:
@@ -62,10 +60,11 @@ def test_registry_keeps_the_last_usable_box_and_answers_joiners_with_it() -> Non
     spec = SessionSpec(session_id="s1", stream_id="cam", preset="arcf-h", box=(5, 5, 20, 20),
                        frame_seq=0)
     cluster.specs["s1"] = spec
-    cluster._on_result(_result("s1", 3, (10.0, 10.0, 20.0, 21.0)))
-    cluster._on_result(_result("s1", 4, (11.0, 10.0, 3.0, 0.0)))  # collapsed: not kept
-    cluster._on_result(_result("s1", 5, (float("nan"),) * 4, status="error"))
-    cluster._on_result(_result("other", 6, (1.0, 1.0, 2.0, 2.0)))  # not a known session
+    cluster._on_last_boxes(_boxes(("s1", 3, (10.0, 10.0, 20.0, 21.0)),
+                                  ("other", 6, (1.0, 1.0, 2.0, 2.0))))  # not a known session
+    cluster._on_last_boxes(_boxes(("s1", 2, (9.0, 10.0, 20.0, 21.0)), worker=1))  # older
+    cluster._on_last_boxes(SimpleNamespace(payload=SimpleNamespace(
+        to_bytes=lambda: b"\x93garbage")))  # malformed: ignored, not fatal
     assert cluster.last == {"s1": (3, (10.0, 10.0, 20.0, 21.0))}
     assert cluster.resume_point("s1") == ((10.0, 10.0, 20.0, 21.0), 4, True)
 
@@ -81,6 +80,20 @@ def test_registry_keeps_the_last_usable_box_and_answers_joiners_with_it() -> Non
     assert joiner.resume_point("s1") == ((10.0, 10.0, 20.0, 21.0), 4, True)
     joiner._merge(b"\x93garbage")  # a malformed entry is ignored, not fatal
     assert list(joiner.specs) == ["s1"]
+
+
+def test_a_box_that_overtakes_its_sessions_spec_counts() -> None:
+    """A worker's first box can reach an instance before the owner's registry put does."""
+    cluster = Cluster(session=None, keys=KeySpace(), instance_id="b")
+    cluster._on_last_boxes(_boxes(("s3", 0, (5.0, 5.0, 20.0, 20.0))))
+    assert cluster.last == {}
+    spec = SessionSpec(session_id="s3", stream_id="cam", preset="bacf", box=(4, 4, 20, 20),
+                       frame_seq=0)
+    cluster._merge(encode(spec))
+    assert cluster.resume_point("s3") == ((5.0, 5.0, 20.0, 20.0), 1, True)
+    for k in range(EARLY_BOXES + 10):  # never-registered sessions: bounded
+        cluster._on_last_boxes(_boxes((f"x{k}", 1, (1.0, 1.0, 2.0, 2.0))))
+    assert len(cluster.early) == EARLY_BOXES
 
 
 def test_a_session_without_results_resumes_from_its_start_box() -> None:
