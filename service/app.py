@@ -18,7 +18,6 @@ import signal
 import sys
 import threading
 import time
-from collections import OrderedDict
 from typing import Any
 
 from arcf import __version__
@@ -48,11 +47,12 @@ class Service:
         from prometheus_client import start_http_server
 
         from arcf.client.transport import open_session
-        from arcf.schemas import ErrorCode, ErrorMessage, KeySpace, encode
+        from arcf.schemas import KeySpace
 
         from . import metrics
         from .cluster import Cluster
         from .control import ControlPlane
+        from .untracked import UntrackedNotices
         from .worker import worker_main
 
         self.keys = KeySpace(s.prefix)
@@ -103,34 +103,16 @@ class Service:
         self.worker_tokens = self.session.liveliness().declare_subscriber(
             self.keys.workers_of_instance(s.instance_id), worker_token)
         # Frames of streams nobody tracks: counted, and answered with a rate-limited error.
-        # The callback only reads the key; it never touches the payload.
-        # when each untracked stream was last told; bounded, so that frames on endless
-        # made-up stream ids cannot grow it (the oldest entries go first)
-        last_notice: OrderedDict[str, float] = OrderedDict()
-
-        def untracked(sample: Any) -> None:
-            try:
-                stream = self.keys.stream_of_frames_key(str(sample.key_expr))
-            except ValueError:
-                return
-            if stream in self.control.tracked_streams():
-                return
-            metrics.ERRORS.labels(kind=ErrorCode.NO_SESSION.value).inc()
-            now = time.monotonic()
-            if now - last_notice.get(stream, 0.0) >= 1.0:
-                last_notice[stream] = now
-                last_notice.move_to_end(stream)
-                while len(last_notice) > 4096:
-                    last_notice.popitem(last=False)
-                self.session.put(self.keys.errors(stream), encode(ErrorMessage(
-                    code=ErrorCode.NO_SESSION, stream_id=stream,
-                    message=f"no tracking session on stream {stream!r}")),
-                    congestion_control=zenoh.CongestionControl.DROP)
-
-        # Only for the embedded router: in a multi-instance deployment every instance would
-        # receive every frame just to count the untracked ones.
-        self.watcher = (self.session.declare_subscriber(self.keys.all_frames(), untracked)
-                        if s.mode == "router" else None)
+        # Through the embedded router, by every frame's key; else by the stations' publisher
+        # tokens (a subscription to every frame would draw the direct path's frames, or in a
+        # fleet every instance's, through this process)
+        self.untracked = UntrackedNotices(
+            self.session, self.keys, self.control.tracked_streams, metrics,
+            mine=self.cluster.mine)
+        if s.mode == "router" and not s.worker_listen:
+            self.untracked.watch_frames()
+        else:
+            self.untracked.watch_publishers()
         self._wait_for_workers(self.settings.worker_start_s)
         self.cluster.join()  # now others may hand streams to us, and we take ours
         self.ready_s = self._serve_a_start(self.settings.worker_start_s)
@@ -189,6 +171,7 @@ class Service:
             # a worker's end wakes this at once (its sentinel), a stop request within 0.2 s
             mp_connection.wait([p.sentinel for p in self.procs], timeout=0.2)
             memory.set(metrics.resident_bytes())
+            self.untracked.tick()
             for k, p in enumerate(self.procs):
                 if not p.is_alive() and not self._stop.is_set():
                     self._replace_worker(k)
@@ -270,8 +253,7 @@ class Service:
         for q in [*self.queues, self.responses]:
             q.close()
             q.join_thread()
-        if self.watcher is not None:
-            self.watcher.undeclare()
+        self.untracked.close()
         self.worker_tokens.undeclare()
         self.queryable.undeclare()
         self.session.close()

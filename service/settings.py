@@ -46,6 +46,13 @@ class ServiceSettings:
         "where the worker processes connect (repeatable; default: the embedded router's "
         "listen endpoint, else --connect), e.g. a unix-socket endpoint the router also "
         "listens on"))
+    worker_listen: tuple[str, ...] = field(default=(), metadata=_about(
+        "the direct data path: each worker is a Zenoh peer listening here (repeatable; port "
+        "0: a free port per worker) besides its link to the router, and a station that is a "
+        "Zenoh peer of the same router links to the worker directly (the router's gossip "
+        "tells it where): frames and results no longer cross the router. The --zenoh-config "
+        "file's TLS and access control hold on these listeners as on the router's. Empty: "
+        "workers are clients of the router"))
     zenoh_config: Path | None = field(default=None, metadata=_about(
         "a Zenoh JSON5 config file applied before the settings above", kind=Path))
     workers: int = field(default_factory=lambda: os.cpu_count() or 1,

@@ -94,7 +94,10 @@ class Worker:
         if not REGION_DECODING:
             log.warning("JPEG frames are decoded whole: the _jpegregion module was not built "
                         "(it needs a C compiler and libjpeg-turbo's headers at install)")
-        self.session = open_session("client", connect=settings.worker_endpoints,
+        # a peer with listeners of its own is what stations link to directly (worker_listen)
+        self.session = open_session("peer" if settings.worker_listen else "client",
+                                    listen=settings.worker_listen,
+                                    connect=settings.worker_endpoints,
                                     config_file=settings.zenoh_config, lease_ms=settings.lease_ms,
                                     max_message_size=settings.transport_limit)
         self.token_key = self.keys.worker_token(settings.instance_id, str(index))
@@ -111,6 +114,8 @@ class Worker:
             self.keys.last_boxes(settings.instance_id, str(index)),
             congestion_control=zenoh.CongestionControl.DROP)
         self.boxes_put: dict[str, int] = {}
+        #: a box may have changed since the last put; the next may go at ``boxes_due``
+        self.boxes_dirty = False
         self.boxes_due = 0.0
         #: streams about to move here: subscribed, their frames queued until adopted
         self.prepared: dict[str, Stream] = {}
@@ -189,21 +194,24 @@ class Worker:
             self._publish_notice(n.session, "stale", n.why, ErrorCode.NO_FRAMES)
         return due
 
-    def _put_last_boxes(self) -> bool:
-        """Every session's last box, if one changed since the last put (a full list each
-        time: one lost message costs nothing but a period); whether it put them. The first
-        change after a quiet spell goes at once: a session's first box is known elsewhere as
-        soon as it is published."""
+    def _put_last_boxes(self, now: float) -> None:
+        """Every session's last box, when one changed: at most once per
+        ``last_box_period_ms``, except that a session's first box goes at once (a new
+        session is known elsewhere as soon as it has a box). A full list each time: one lost
+        message costs nothing but a period."""
         boxes = {s.session_id: s.last_box for s in self.table if s.last_box is not None}
         seqs = {sid: last[0] for sid, last in boxes.items()}
         if seqs == self.boxes_put:
-            return False
+            self.boxes_dirty = False
+            return
+        if now < self.boxes_due and seqs.keys() <= self.boxes_put.keys():
+            return  # the period's put comes at boxes_due (the loop wakes for it)
         self.boxes.put(encode(LastBoxes(
             instance_id=self.settings.instance_id, worker=self.index,
             boxes=[LastBox(session_id=sid, frame_seq=seq, box=box)
                    for sid, (seq, box) in boxes.items()])))
-        self.boxes_put = seqs
-        return True
+        self.boxes_put, self.boxes_dirty = seqs, False
+        self.boxes_due = now + self.settings.last_box_period_ms / 1e3
 
     def _end(self, s: Session, reason: str, code: ErrorCode) -> None:
         """End a session by the service's own decision: its last result says why, the
@@ -505,7 +513,8 @@ class Worker:
             # cleared before draining: anything arriving from now on wakes the next round.
             # Asleep until the next stale deadline at the latest (none without sessions: an
             # idle worker still wakes only twice a second)
-            self.wake.wait(timeout=min(0.5, max(self.stale_due - time.monotonic(), 0.0)))
+            due = min(self.stale_due, self.boxes_due if self.boxes_dirty else math.inf)
+            self.wake.wait(timeout=min(0.5, max(due - time.monotonic(), 0.0)))
             self.wake.clear()
             worked = True
             # one frame per stream per round, commands in between: fair shares. The fence, the
@@ -540,6 +549,7 @@ class Worker:
                     finally:
                         if self.inflight is not None:
                             self.inflight.clear()
+                    self.boxes_dirty = True
                     spent = time.perf_counter() - t0
                     busy_s += spent
                     stream.load_cpu_s += time.thread_time() - c0
@@ -547,8 +557,8 @@ class Worker:
                         log.warning("worker %d: a frame of stream %s took %.0f ms", self.index,
                                     stream.stream_id, 1e3 * spent)
                 now = time.monotonic()
-                if now >= self.boxes_due and self._put_last_boxes():
-                    self.boxes_due = now + self.settings.last_box_period_ms / 1e3
+                if self.boxes_dirty:
+                    self._put_last_boxes(now)
                 if now >= self.stale_due:
                     self.stale_due = self._check_stale(now)
                 if now - t_window >= 1.0:

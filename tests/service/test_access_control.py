@@ -19,6 +19,7 @@ from arcf.client import ServiceError, TrackingClient
 from arcf.data import data_root
 from arcf.eval import load_dataset
 from arcf.loadtools.procs import ServiceProcess, free_port
+from arcf.loadtools.waiting import next_result, wait_until
 from arcf.schemas import Status, StatusRequest, decode, encode
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -162,3 +163,74 @@ def test_only_authorised_stations_track(tmp_path: Path) -> None:
         # and without a client certificate, no connection at all (mutual TLS)
         with pytest.raises(zenoh.ZError):
             zenoh.open(zenoh.Config.from_file(str(peer_config(tmp_path, None, endpoint))))
+
+
+def _rules(path: Path) -> tuple[list, list]:
+    """A config file's access rules and policies (subjects aside)."""
+    acl = zenoh.Config.from_file(str(path)).get_json("access_control")
+    return json.loads(acl)["rules"], json.loads(acl)["policies"]
+
+
+def direct_peer(d: Path, cn: str, endpoint: str) -> zenoh.Session:
+    """A station as a Zenoh peer of the TLS deployment: it links to the workers' listeners the
+    router's gossip names. It listens on nothing (only the workers do), so stations never link
+    to each other."""
+    conf = zenoh.Config.from_file(str(peer_config(d, cn, endpoint)))
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("listen/endpoints", "[]")
+    return zenoh.open(conf)
+
+
+def test_the_direct_path_holds_the_routers_rules(tmp_path: Path) -> None:
+    """Workers listening for stations themselves (``--worker-listen``) check what the router
+    checks (deploy/zenoh/service-direct-tls-acl.json5): an authorised station tracks over its
+    direct link, and a station with a valid certificate but no rights, linked to the same
+    worker, can neither inject frames nor read results there."""
+    assert _rules(DEPLOY / "service-direct-tls-acl.json5") == _rules(
+        DEPLOY / "router-tls-acl.json5")
+    make_certs(tmp_path, ["router", "arcf-service-1", "station-01", "intruder"])
+    port = free_port()
+    endpoint = f"tls/localhost:{port}"
+    conf = zenoh.Config.from_file(str(DEPLOY / "router-tls-acl.json5"))
+    conf.insert_json5("listen/endpoints", json.dumps([f"tls/127.0.0.1:{port}"]))
+    for key, name in (("root_ca_certificate", "ca.pem"), ("listen_certificate", "router.pem"),
+                      ("listen_private_key", "router-key.pem")):
+        conf.insert_json5(f"transport/link/tls/{key}", json.dumps(str(tmp_path / name)))
+    service_conf = tmp_path / "service-direct.json5"
+    service_conf.write_text(
+        (DEPLOY / "service-direct-tls-acl.json5").read_text()
+        .replace("tls/router.example.org:7447", endpoint)
+        .replace("/certs/ca.pem", str(tmp_path / "ca.pem"))
+        .replace("/certs/service.pem", str(tmp_path / "arcf-service-1.pem"))
+        .replace("/certs/service-key.pem", str(tmp_path / "arcf-service-1-key.pem")))
+    seq = load_dataset("uav123_10fps", sequences=["wakeboard7"])[0]
+    data = [p.read_bytes() for p in seq.frames[:4]]
+    with zenoh.open(conf):
+        svc = ServiceProcess("--zenoh-config", str(service_conf),
+                             "--worker-listen", "tls/127.0.0.1:0", connect=endpoint, workers=1)
+        try:
+            station = direct_peer(tmp_path, "station-01", endpoint)
+            intruder = direct_peer(tmp_path, "intruder", endpoint)
+            for peer in (station, intruder):  # each linked to the worker itself
+                wait_until(lambda peer=peer: len(list(peer.info.peers_zid())) >= 1,
+                           timeout=30, what="a direct link to the worker")
+            with TrackingClient(session=station, frame_congestion="block") as good, \
+                    TrackingClient(session=intruder) as bad:
+                results = good.results("cam")
+                ack = good.start("cam", seq.init_box, preset="bacf", frame_seq=0)
+                snooped = bad.results("cam")
+                got = []
+                for i, d in enumerate(data):
+                    good.publish_frame("cam", data=d, seq=i)
+                    got.append(next_result(results, i - 1, timeout=30))
+                    bad.publish_frame("cam", data=d, seq=1000 + i)  # denied at the worker
+                assert [r.frame_seq for r in got] == [0, 1, 2, 3]
+                assert [r.status.value for r in got] == ["initialized"] + ["tracking"] * 3
+                good.stop(ack.session_id)
+                # the worker counts what reached it: the station's four frames only
+                assert svc.metric("arcf_frames_received_total") == 4
+                assert list(snooped.iter(timeout=0.5)) == []
+            station.close()
+            intruder.close()
+        finally:
+            assert svc.stop() == 0

@@ -27,7 +27,7 @@ from arcf.eval import load_dataset
 from arcf.loadtools.driver import Clip, Fleet, Pacing
 from arcf.loadtools.procs import ServiceProcess as _Service
 from arcf.loadtools.waiting import wait_until
-from arcf.schemas import KeySpace
+from arcf.schemas import KeySpace, LastBoxes, decode
 from arcf.service.scrape import by_label, fetch
 from arcf.service.settings import ServiceSettings
 from arcf.service.stages import STAGES
@@ -336,12 +336,27 @@ def test_a_killed_worker_is_replaced_and_its_sessions_resume(frames) -> None:
         with TrackingClient(connect=[svc.endpoint], frame_congestion="block") as client:
             r0, r1 = client.results(s0), client.results(s1)
             notices: list = []
+            boxes: list[LastBoxes] = []
+            box_sub = client.session.declare_subscriber(
+                keys.all_last_boxes(), lambda x: boxes.append(decode(x.payload.to_bytes())))
+
+            def boxed_at(frame: int) -> set[str]:
+                """Streams whose session's box of ``frame`` was put."""
+                sids = {e.session_id for m in list(boxes) for e in m.boxes
+                        if e.frame_seq == frame}
+                return {st.stream_id for st in client.status().sessions
+                        if st.session_id in sids}
+
             subs = [client.session.declare_subscriber(keys.errors(s), lambda x: notices.append(
                 str(x.key_expr))) for s in (s0, s1)]
             first = _clip(seq, data[:3])
             _lockstep(client, {s0: (first, ["bacf"]), s1: (first, ["bacf"])})
             for r in (r0, r1):  # the same results, queued here for the steps below
                 assert [x.frame_seq for x in _collect(r, 3, timeout=30)] == [0, 1, 2]
+            # frame 2's boxes reach the instance within last_box_period_ms, though no frame
+            # follows: the worker wakes to put them
+            wait_until(lambda: {s0, s1} <= boxed_at(2), timeout=30,
+                       what="the last boxes of frame 2 put")
             victim = sorted(svc.workers)[0]
             os.kill(victim, signal.SIGKILL)
             wait_until(lambda: bool(notices), timeout=60, what="a notice about the lost worker")
@@ -372,7 +387,7 @@ def test_a_killed_worker_is_replaced_and_its_sessions_resume(frames) -> None:
             client.publish_frame(dead_stream, data=data[i % len(data)], seq=i)
             (after,) = _collect(dead_results, 1, timeout=30)
             assert after.status == "tracking" and after.frame_seq == i
-            for s in subs:
+            for s in [*subs, box_sub]:
                 s.undeclare()
         assert svc.metric("arcf_errors_total") >= 1
         assert svc.metric("arcf_sessions_taken_over_total") == 1
