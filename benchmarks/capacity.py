@@ -23,17 +23,21 @@ Writes ``capacity.json`` and prints Markdown tables (for docs/benchmarks.md).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import itertools
 import json
 import os
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+from arcf.client import TrackingClient
 from arcf.loadtools.loadtest import passes, run_load
 from arcf.loadtools.procs import ServiceProcess
 from arcf.loadtools.system import machine
+from arcf.loadtools.waiting import wait_until
 
 
 def image_size(seq: Any) -> list[int]:
@@ -62,6 +66,11 @@ def main() -> int:
     ap.add_argument("--reference-seconds", type=float, default=30.0)
     ap.add_argument("--workers", type=int, default=0,
                     help="the service's worker processes (default: one per CPU)")
+    ap.add_argument("--spare-workers", type=int, default=0,
+                    help="the service's spare workers (taking streams off an overloaded one)")
+    ap.add_argument("--path", choices=("router", "direct"), default="router",
+                    help="frames through the router, or straight to the workers (peer "
+                    "stations, --worker-listen)")
     ap.add_argument("--skip-capacity", action="store_true")
     ap.add_argument("--skip-saturation", action="store_true")
     ap.add_argument("--out", default="capacity.json")
@@ -77,10 +86,28 @@ def main() -> int:
     ncpu = os.cpu_count() or 1
     # closed-loop streams at saturation run faster than the per-stream rate limit (60 fps by
     # default: a station flooding the others): lifted here, where throughput is the question
-    svc = ServiceProcess("--max-stream-fps", "10000", workers=args.workers or ncpu, quiet=False)
+    direct = args.path == "direct"
+    svc = ServiceProcess("--max-stream-fps", "10000",
+                         "--spare-workers", str(args.spare_workers),
+                         *(("--worker-listen", "tcp/127.0.0.1:0") if direct else ()),
+                         workers=args.workers or ncpu, quiet=False)
     proc, endpoint, metrics_url = svc.proc, svc.endpoint, svc.metrics_url
     out: dict[str, Any] = {"machine": machine(), "workers": args.workers or ncpu,
+                           "spare_workers": args.spare_workers, "path": args.path,
                            "capacity": [], "saturation": []}
+
+    @contextlib.contextmanager
+    def station() -> Iterator[Any]:
+        """A level's station: the load tool's own (None), or a peer linked to every worker."""
+        if not direct:
+            yield None
+            return
+        with TrackingClient(connect=[endpoint], mode="peer") as client:
+            wait_until(lambda: len(list(client.session.info.peers_zid()))
+                       >= out["workers"] + args.spare_workers,
+                       timeout=30, what="the station linked to every worker")
+            yield client
+
     t_start = time.monotonic()
     try:
         if not args.skip_capacity:
@@ -88,11 +115,12 @@ def main() -> int:
                     args.encodings.split(","), presets, rates, seqs):
                 levels = []
                 for n in range(1, args.max_streams + 1):
-                    r = run_load([endpoint], [seq], streams=n, preset=preset, fps=fps,
-                                 duration=args.duration, loop=True,
-                                 metrics_url=metrics_url, service_pid=proc.pid,
-                                 offline=False, reference_seconds=0, progress=False,
-                                 encoding=encoding)
+                    with station() as client:
+                        r = run_load([endpoint], [seq], streams=n, preset=preset, fps=fps,
+                                     duration=args.duration, loop=True,
+                                     metrics_url=metrics_url, service_pid=proc.pid,
+                                     offline=False, reference_seconds=0, progress=False,
+                                     encoding=encoding, client=client)
                     r["passes"] = passes(r, args.p99_ms)
                     keep = ("sequence", "frames_sent", "results", "dropped_by_service",
                             "latency_ms")
@@ -116,11 +144,13 @@ def main() -> int:
             sat = [s for s in seqs if s.name in args.saturation_sequences.split(",")]
             for preset in presets:
                 for seq in sat:
-                    r = run_load([endpoint], [seq], streams=2 * ncpu, preset=preset, fps=0,
-                                 in_flight=1, duration=args.saturation_seconds, loop=True,
-                                 window=args.saturation_window,
-                                 metrics_url=metrics_url, service_pid=proc.pid, offline=False,
-                                 reference_seconds=args.reference_seconds, progress=False)
+                    with station() as client:
+                        r = run_load([endpoint], [seq], streams=2 * ncpu, preset=preset,
+                                     fps=0, in_flight=1, duration=args.saturation_seconds,
+                                     loop=True, window=args.saturation_window,
+                                     metrics_url=metrics_url, service_pid=proc.pid,
+                                     offline=False, reference_seconds=args.reference_seconds,
+                                     progress=False, client=client)
                     r.pop("per_stream")
                     out["saturation"].append(r)
                     print(f"{preset} saturation {seq.name}: {r['processed_fps']:.1f} fps, "
@@ -138,7 +168,11 @@ def markdown(out: dict[str, Any]) -> str:
     m = out["machine"]
     workers = out.get("workers", m["nproc"])
     software = f", {m['software']}" if m.get("software") else ""
-    lines = [f"Machine: nproc {m['nproc']}, {m['cpu']}{software}; {workers} workers.", ""]
+    path = out.get("path", "router")
+    spares = out.get("spare_workers", 0)
+    lines = [f"Machine: nproc {m['nproc']}, {m['cpu']}{software}; {workers} workers"
+             f"{f' and {spares} spare' if spares else ''}; frames through the "
+             f"{'router' if path == 'router' else 'direct path'}.", ""]
     if out["capacity"]:
         cols = list(dict.fromkeys((c.get("encoding", "jpeg"), c["preset"], c["fps"])
                                   for c in out["capacity"]))

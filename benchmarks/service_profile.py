@@ -18,6 +18,10 @@ process (decode + track, one thread). Per frame, in CPU milliseconds:
     python benchmarks/service_profile.py            # arcf-h on wakeboard7, JPEG and H.264
     python benchmarks/service_profile.py --preset arcf-hc --sequence boat1 --encodings jpeg
     python benchmarks/service_profile.py --encodings jpeg,jpeg-sdk   # restart intervals
+    python benchmarks/service_profile.py --encodings jpeg-sdk --path direct  # --worker-listen
+
+``--path direct`` runs the worker with ``--worker-listen`` and the station as a Zenoh peer
+linked to it: frames and results do not cross the router.
 
 The machine should be otherwise idle: the generator (this process) runs beside the service.
 """
@@ -77,7 +81,7 @@ def library_alone(clip: Any, preset: str, frames: int, pace_s: float = 0.0) -> d
 
 
 def service_run(clip: Any, preset: str, frames: int, fps: float,
-                external_router: bool) -> dict[str, float]:
+                external_router: bool, direct: bool = False) -> dict[str, float]:
     """One stream through a real service; CPU ms per frame by stage and by process."""
     from contextlib import ExitStack
 
@@ -85,6 +89,7 @@ def service_run(clip: Any, preset: str, frames: int, fps: float,
     from arcf.loadtools.driver import Fleet, Pacing
     from arcf.loadtools.procs import RouterProcess, ServiceProcess
     from arcf.loadtools.system import cpu_seconds
+    from arcf.loadtools.waiting import wait_until
     from arcf.service.scrape import by_label, fetch, totals
     from arcf.service.stages import STAGES
 
@@ -97,11 +102,16 @@ def service_run(clip: Any, preset: str, frames: int, fps: float,
     with ExitStack() as stack:
         router = stack.enter_context(RouterProcess()) if external_router else None
         svc = stack.enter_context(ServiceProcess(
+            *(("--worker-listen", "tcp/127.0.0.1:0") if direct else ()),
             workers=1, connect=router.endpoint if router else None))
         (worker,) = svc.workers
         router_cpu = (lambda: cpu_seconds(router.proc.pid)) if router else (lambda: 0.0)
-        with TrackingClient(connect=[svc.endpoint], frame_congestion="block") as client, \
+        with TrackingClient(connect=[svc.endpoint], frame_congestion="block",
+                            mode="peer" if direct else "client") as client, \
                 Fleet(client, [clip], preset=preset, pacing=Pacing.fixed_rate(fps)) as fleet:
+            if direct:
+                wait_until(lambda: len(list(client.session.info.peers_zid())) >= 1,
+                           timeout=30, what="the station linked to the worker")
             # re-initialised where the clip starts over, as the library run below is: a tracker
             # that jumped back to the first frame would be searching the whole frame
             (stream,) = fleet.add(frames=frames, hold=True, reinit_on_wrap=True)
@@ -145,6 +155,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--frames", type=int, default=600, help="frames sent (the clip looped)")
     ap.add_argument("--router", choices=("embedded", "external"), default="embedded",
                     help="the service's own router, or a separate arcf-router it connects to")
+    ap.add_argument("--path", choices=("router", "direct"), default="router",
+                    help="frames through the router, or straight to the worker (a peer "
+                    "station, --worker-listen)")
     args = ap.parse_args(argv)
     sys.path.insert(0, str(ROOT))
 
@@ -168,13 +181,13 @@ def main(argv: list[str] | None = None) -> int:
         paced = library_alone(clip, args.preset, n, 1 / args.fps)
         alone[encoding].update({f"paced {k}": v for k, v in paced.items()})
         columns[encoding] = service_run(clip, args.preset, args.frames, args.fps,
-                                        args.router == "external")
+                                        args.router == "external", args.path == "direct")
     h, w = seq.read_frame(0).shape[:2]
     print(f"`python benchmarks/service_profile.py {' '.join(argv or sys.argv[1:])}`"
           .replace(" `", "`"))
     print(f"{time.strftime('%Y-%m-%d')}, {describe()}; {args.preset} "
           f"on {args.sequence} ({w}x{h}), one stream at {args.fps:g} fps, {args.frames} frames, "
-          f"{args.router} router; CPU ms per frame\n")
+          f"{args.router} router, {args.path} path; CPU ms per frame\n")
     encs = list(columns)
     print("| stage | " + " | ".join(encs) + " |")
     print("| --- |" + " --- |" * len(encs))

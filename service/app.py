@@ -67,14 +67,15 @@ class Service:
             self.metrics_url = f"http://{s.metrics_host}:{self.http.server_port}/metrics"
         ctx = mp.get_context("spawn")  # never fork a process holding a Zenoh session
         self.worker_stop = ctx.Event()
-        self.queues = [ctx.Queue() for _ in range(s.workers)]
+        processes = s.workers + s.spare_workers
+        self.queues = [ctx.Queue() for _ in range(processes)]
         self.responses = ctx.Queue()
         #: per worker, the stream whose frame it is processing (read when it dies)
-        self.inflight = [InFlight(ctx) for _ in range(s.workers)]
+        self.inflight = [InFlight(ctx) for _ in range(processes)]
         self.procs = [ctx.Process(target=worker_main, args=(k, s, self.queues[k],
                                                               self.responses, self.worker_stop,
                                                               self.inflight[k]),
-                                  name=f"arcf-worker-{k}") for k in range(s.workers)]
+                                  name=f"arcf-worker-{k}") for k in range(processes)]
         for p in self.procs:
             p.start()
         self.cluster = Cluster(self.session, self.keys, s.instance_id)
@@ -153,7 +154,7 @@ class Service:
         key = self.keys.workers_of_instance(self.settings.instance_id)
         while time.monotonic() < deadline:
             alive = [r for r in self.session.liveliness().get(key, timeout=1.0) if r.ok]
-            if len(alive) >= self.settings.workers:
+            if len(alive) >= len(self.procs):
                 return
             if any(not p.is_alive() for p in self.procs):
                 raise RuntimeError("a worker process died during start-up")

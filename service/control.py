@@ -446,9 +446,12 @@ class ControlPlane:
                 w = same[0]
             else:
                 # a replacement still starting would hold the session for seconds: a live
-                # worker takes it (the starting ones are chosen last)
+                # worker takes it (the starting ones are chosen last); spare workers take
+                # only streams moved to them (balance)
                 starting = self.starting if len(self.starting) < len(self.queues) else ()
-                w = self.book.place(stream_id, self._where(), len(self.queues), starting)
+                spares = range(self.settings.workers, len(self.queues))
+                w = self.book.place(stream_id, self._where(), len(self.queues),
+                                    {*starting, *spares})
             self.sessions[sid] = SessionRecord(sid, stream_id, preset, w, time.time(),
                                                client_id, token_sha256)
             if client_id is not None and client_id not in self.live_clients:
@@ -470,7 +473,8 @@ class ControlPlane:
         with self.op_lock:
             with self.lock:
                 move = self.book.plan_move(self._where(), len(self.queues), time.monotonic(),
-                                           self.starting)
+                                           self.starting,
+                                           range(self.settings.workers, len(self.queues)))
             if move is None:
                 return None
             try:

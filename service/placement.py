@@ -13,7 +13,13 @@ second, the CPU each of its streams used (its decoding and its sessions' trackin
   busy when that lowers the busiest worker's load by at least ``min_gain`` cores and it is
   above ``busy_above``; a stream moved is left alone for ``settle_s`` (its cost measured
   afresh where it now runs), so a run of costly frames (a lost target's search) does not
-  bounce a stream back and forth.
+  bounce a stream back and forth;
+* a *spare* worker (``spare_workers``) takes no new stream, and a move goes to one only when
+  the busiest worker is ``overloaded`` (near a whole core: it drops frames) and no move among
+  the others helps. Streams are whole: three of 0.55 cores on two workers leave one with 1.1
+  cores whatever the placement, while three processes on two cores share them (0.67 each).
+  Light streams stay on as many workers as cores, where the kernel never has to time-slice
+  them.
 
 Pure logic, no clock of its own and no processes: tested on its own
 (tests/service/test_placement.py); the control plane does the moving.
@@ -80,6 +86,8 @@ class LoadBook:
     min_gain: float = 0.1
     busy_above: float = 0.5
     settle_s: float = 10.0
+    #: a worker's load (cores) from which a spare may take one of its streams
+    overloaded: float = 0.9
     costs: dict[str, _Cost] = field(default_factory=dict)
 
     def report(self, streams: dict[str, StreamLoad]) -> None:
@@ -120,10 +128,21 @@ class LoadBook:
         return place(stream_id, self.loads(where, workers, excluded), counts)
 
     def plan_move(self, where: dict[str, int], workers: int, now: float,
-                  excluded: Iterable[int] = ()) -> Move | None:
+                  excluded: Iterable[int] = (), spares: Iterable[int] = ()) -> Move | None:
         """The one move that best lowers the busiest worker's load, if worth it (see the
         module's rules); None otherwise."""
-        excluded = set(excluded)
+        spares = set(spares)
+        move = self._best_move(where, workers, now, {*excluded, *spares})
+        if move is not None or not spares:
+            return move
+        move = self._best_move(where, workers, now, set(excluded))
+        if move is None or move.target not in spares or move.before < self.overloaded:
+            return None
+        return move
+
+    def _best_move(self, where: dict[str, int], workers: int, now: float,
+                   excluded: set[int]) -> Move | None:
+        """The best move from the busiest of the workers not ``excluded`` to another."""
         loads = self.loads(where, workers)
         live = [w for w in range(workers) if w not in excluded]
         if len(live) < 2:

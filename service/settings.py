@@ -57,6 +57,12 @@ class ServiceSettings:
         "a Zenoh JSON5 config file applied before the settings above", kind=Path))
     workers: int = field(default_factory=lambda: os.cpu_count() or 1,
                          metadata=_about("worker processes (default: one per core)"))
+    spare_workers: int = field(default=0, metadata=_about(
+        "worker processes beyond --workers that take no new stream, only one moved off a "
+        "worker its streams overload when no move among the others helps (balance_s): "
+        "streams are whole, so three streams of 0.55 cores each leave one of two workers "
+        "with 1.1 cores; on three processes the kernel shares the two cores among them. "
+        "An idle spare costs no CPU"))
     frame_queue: int = field(default=4, metadata=_about(
         "newest frames kept per stream; older ones are dropped (and counted) when a worker "
         "lags. Four absorb a burst of work on a worker (a session's start, a lost target's "

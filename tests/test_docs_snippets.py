@@ -217,6 +217,18 @@ def test_a_first_session_answers_every_frame(service: dict[str, str]) -> None:
     assert all(f[1] == "tracking" for f in fields[1:]), lines
 
 
+@checks("direct_station.py")
+def test_a_peer_station_links_to_the_worker() -> None:
+    pytest.importorskip("zenoh")
+    from arcf.loadtools.procs import ServiceProcess
+
+    with ServiceProcess("--worker-listen", "tcp/127.0.0.1:0", workers=1) as svc:
+        lines = run("direct_station.py", env={"ARCF_ENDPOINT": svc.endpoint}).splitlines()
+    assert lines[0] == "linked to 1 worker(s)", lines
+    assert [line.split(" ") for line in lines[1:]] == [
+        [str(k), "initialized" if k == 0 else "tracking"] for k in range(10)], lines
+
+
 @checks("fleet.py")
 def test_a_fleet_accounts_for_every_frame(service: dict[str, str]) -> None:
     out = run("fleet.py", env=service)

@@ -4,6 +4,9 @@ result, and the results equal the library's offline, bit for bit, across the mov
 
 from __future__ import annotations
 
+import os
+import signal
+
 import numpy as np
 import pytest
 
@@ -15,7 +18,7 @@ from arcf.client.media.images import decode_compressed
 from arcf.data import data_root
 from arcf.eval import load_dataset
 from arcf.loadtools.procs import ServiceProcess
-from arcf.loadtools.waiting import next_result
+from arcf.loadtools.waiting import next_result, wait_until
 from arcf.service.scrape import by_label, fetch
 
 pytestmark = [pytest.mark.integration,
@@ -70,3 +73,34 @@ def test_streams_move_between_workers_and_their_results_do_not_change() -> None:
         assert results[0].status == "initialized"
         assert all(r.status == "tracking" and r.dropped == 0 for r in results[1:])
         np.testing.assert_allclose([r.box for r in results], expected, atol=1e-9)
+
+
+def test_a_spare_worker_takes_no_new_stream() -> None:
+    """``--spare-workers``: a spare runs, and is counted ready, but new streams go to the
+    regular workers only (it takes streams moved off an overloaded worker:
+    tests/service/test_placement.py has the rule). Shown by killing the spare: no session
+    had to be resumed, and every stream goes on."""
+    (seq,) = load_dataset("uav123_10fps", sequences=["truck4_2"])
+    data = [p.read_bytes() for p in seq.frames[:6]]
+    box = tuple(float(v) for v in seq.init_box)
+    svc = ServiceProcess("--spare-workers", "1", "--max-stream-fps", "10000", workers=1)
+    try:
+        assert len(svc.workers) == 2
+        spare = sorted(svc.workers)[1]  # spawned after worker 0
+        with TrackingClient(connect=[svc.endpoint], frame_congestion="block") as client:
+            queues = {s: client.results(s) for s in STREAMS}
+            for s in STREAMS:
+                client.start(s, box, preset="bacf", frame_seq=0)
+            for i, d in enumerate(data):
+                if i == 3:
+                    os.kill(spare, signal.SIGKILL)
+                    wait_until(lambda: svc.metric("arcf_worker_deaths_total") == 1,
+                               timeout=60, what="the spare's death counted")
+                for s in STREAMS:
+                    client.publish_frame(s, data=d, seq=i)
+                for s in STREAMS:
+                    r = next_result(queues[s], i - 1)
+                    assert r.frame_seq == i and r.status.value != "resumed", r
+        assert svc.metric("arcf_sessions_taken_over_total") == 0
+    finally:
+        svc.stop()

@@ -57,6 +57,24 @@ def test_the_move_that_best_lowers_the_busiest_worker_is_chosen() -> None:
     assert book.plan_move({"a": 1, "b": 0, "d": 1}, 2, now=101.0) is None
 
 
+def test_a_spare_worker_takes_a_stream_only_off_an_overloaded_worker() -> None:
+    """Two workers and a spare (2): three heavy streams leave one worker with two whatever
+    the placement, and only the spare can take one; light ones never go to the spare."""
+    book = _book(a=0.48, b=0.48, c=0.55)  # a and b saturate worker 0 (0.96 cores)
+    where = {"a": 0, "b": 0, "c": 1}
+    assert book.place("new", where, 3, excluded={2}) in (0, 1)  # never the spare
+    move = book.plan_move(where, 3, now=100.0, spares={2})
+    assert move is not None and (move.source, move.target) == (0, 2)
+    assert move.after == pytest.approx(0.55)
+    # light: worker 0 busy (0.6) but far from a core, so its frames do not wait; no spare
+    light = _book(a=0.3, b=0.3, c=0.3)
+    assert light.plan_move(where, 3, now=100.0, spares={2}) is None
+    # a move among the others that helps is preferred to the spare
+    uneven = _book(a=0.5, b=0.45, c=0.1)
+    move = uneven.plan_move(where, 3, now=100.0, spares={2})
+    assert move is not None and move.target == 1
+
+
 def test_no_move_for_a_small_gain_an_idle_pool_or_a_stream_that_cannot_move() -> None:
     # 0.55 against 0.5: moving the 0.05 stream gains less than min_gain
     book = _book(a=0.5, b=0.05, c=0.5)
