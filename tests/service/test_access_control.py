@@ -62,15 +62,21 @@ def peer_config(d: Path, cn: str | None, endpoint: str) -> Path:
     return path
 
 
-def test_only_authorised_stations_track(tmp_path: Path) -> None:
-    make_certs(tmp_path, ["router", "arcf-service-1", "station-01", "station-02", "intruder"])
+def router_config(d: Path) -> tuple[zenoh.Config, str]:
+    """deploy/zenoh/router-tls-acl.json5 on a free loopback port with the certificates of
+    ``d``, and the endpoint peers connect to."""
     port = free_port()
-    endpoint = f"tls/localhost:{port}"
     conf = zenoh.Config.from_file(str(DEPLOY / "router-tls-acl.json5"))
     conf.insert_json5("listen/endpoints", json.dumps([f"tls/127.0.0.1:{port}"]))
     for key, name in (("root_ca_certificate", "ca.pem"), ("listen_certificate", "router.pem"),
                       ("listen_private_key", "router-key.pem")):
-        conf.insert_json5(f"transport/link/tls/{key}", json.dumps(str(tmp_path / name)))
+        conf.insert_json5(f"transport/link/tls/{key}", json.dumps(str(d / name)))
+    return conf, f"tls/localhost:{port}"
+
+
+def test_only_authorised_stations_track(tmp_path: Path) -> None:
+    make_certs(tmp_path, ["router", "arcf-service-1", "station-01", "station-02", "intruder"])
+    conf, endpoint = router_config(tmp_path)
     seq = load_dataset("uav123_10fps", sequences=["wakeboard7"])[0]
     data = [p.read_bytes() for p in seq.frames[:4]]
     with zenoh.open(conf):
@@ -189,13 +195,7 @@ def test_the_direct_path_holds_the_routers_rules(tmp_path: Path) -> None:
     assert _rules(DEPLOY / "service-direct-tls-acl.json5") == _rules(
         DEPLOY / "router-tls-acl.json5")
     make_certs(tmp_path, ["router", "arcf-service-1", "station-01", "intruder"])
-    port = free_port()
-    endpoint = f"tls/localhost:{port}"
-    conf = zenoh.Config.from_file(str(DEPLOY / "router-tls-acl.json5"))
-    conf.insert_json5("listen/endpoints", json.dumps([f"tls/127.0.0.1:{port}"]))
-    for key, name in (("root_ca_certificate", "ca.pem"), ("listen_certificate", "router.pem"),
-                      ("listen_private_key", "router-key.pem")):
-        conf.insert_json5(f"transport/link/tls/{key}", json.dumps(str(tmp_path / name)))
+    conf, endpoint = router_config(tmp_path)
     service_conf = tmp_path / "service-direct.json5"
     service_conf.write_text(
         (DEPLOY / "service-direct-tls-acl.json5").read_text()
