@@ -206,10 +206,14 @@ class Worker:
             return
         if now < self.boxes_due and seqs.keys() <= self.boxes_put.keys():
             return  # the period's put comes at boxes_due (the loop wakes for it)
-        self.boxes.put(encode(LastBoxes(
-            instance_id=self.settings.instance_id, worker=self.index,
-            boxes=[LastBox(session_id=sid, frame_seq=seq, box=box)
-                   for sid, (seq, box) in boxes.items()])))
+        try:
+            self.boxes.put(encode(LastBoxes(
+                instance_id=self.settings.instance_id, worker=self.index,
+                boxes=[LastBox(session_id=sid, frame_seq=seq, box=box)
+                       for sid, (seq, box) in boxes.items()])))
+        except Exception:  # a bug of ours must not stop the loop: the next change retries
+            log.exception("worker %d: last boxes not put", self.index)
+            self.metrics.ERRORS.labels(kind=ErrorCode.INTERNAL.value).inc()
         self.boxes_put, self.boxes_dirty = seqs, False
         self.boxes_due = now + self.settings.last_box_period_ms / 1e3
 
