@@ -80,7 +80,10 @@ class UntrackedNotices:
 
     def _on_publisher(self, sample: Any) -> None:
         key = str(sample.key_expr)
-        stream = key.rsplit("/", 2)[-2]
+        try:
+            stream, _ = self.keys.parse_publisher_key(key)
+        except ValueError:
+            return
         with self.lock:
             tokens = self.announced.pop(stream, set())
             if sample.kind == self.put_kind:
