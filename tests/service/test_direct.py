@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import os
 import signal
-import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -28,6 +28,11 @@ pytestmark = [pytest.mark.integration,
 
 #: frames tracked with the router running, then with it frozen
 BEFORE, FROZEN = 5, 10
+
+
+def stopped(pid: int) -> bool:
+    """Whether process ``pid`` is stopped by a signal (state T in /proc)."""
+    return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] == "T"
 
 
 def test_frames_and_results_bypass_the_router() -> None:
@@ -56,7 +61,8 @@ def test_frames_and_results_bypass_the_router() -> None:
                 if i == BEFORE:  # the router (and the control plane) stop dead
                     os.kill(svc.pid, signal.SIGSTOP)
                     frozen = True
-                    time.sleep(0.2)  # the stimulus: frames sent after the freeze took effect
+                    wait_until(lambda: stopped(svc.pid), timeout=30,
+                               what="the router's process stopped")
                 station.publish_frame("cam", data=data[i], seq=i)
                 got.append(next_result(results, i - 1, timeout=60))
             os.kill(svc.pid, signal.SIGCONT)
