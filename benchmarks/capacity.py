@@ -37,7 +37,7 @@ from arcf.client import TrackingClient
 from arcf.loadtools.loadtest import passes, run_load
 from arcf.loadtools.procs import ServiceProcess
 from arcf.loadtools.system import machine
-from arcf.loadtools.waiting import wait_until
+from arcf.loadtools.waiting import wait_for_peers
 
 
 def image_size(seq: Any) -> list[int]:
@@ -103,9 +103,7 @@ def main() -> int:
             yield None
             return
         with TrackingClient(connect=[endpoint], mode="peer") as client:
-            wait_until(lambda: len(list(client.session.info.peers_zid()))
-                       >= out["workers"] + args.spare_workers,
-                       timeout=30, what="the station linked to every worker")
+            wait_for_peers(client.session, out["workers"] + args.spare_workers)
             yield client
 
     t_start = time.monotonic()

@@ -89,7 +89,7 @@ def service_run(clip: Any, preset: str, frames: int, fps: float,
     from arcf.loadtools.driver import Fleet, Pacing
     from arcf.loadtools.procs import RouterProcess, ServiceProcess
     from arcf.loadtools.system import cpu_seconds
-    from arcf.loadtools.waiting import wait_until
+    from arcf.loadtools.waiting import wait_for_peers
     from arcf.service.scrape import by_label, fetch, totals
     from arcf.service.stages import STAGES
 
@@ -110,8 +110,7 @@ def service_run(clip: Any, preset: str, frames: int, fps: float,
                             mode="peer" if direct else "client") as client, \
                 Fleet(client, [clip], preset=preset, pacing=Pacing.fixed_rate(fps)) as fleet:
             if direct:
-                wait_until(lambda: len(list(client.session.info.peers_zid())) >= 1,
-                           timeout=30, what="the station linked to the worker")
+                wait_for_peers(client.session)
             # re-initialised where the clip starts over, as the library run below is: a tracker
             # that jumped back to the first frame would be searching the whole frame
             (stream,) = fleet.add(frames=frames, hold=True, reinit_on_wrap=True)

@@ -63,3 +63,11 @@ class Arrivals(Generic[T]):
                 raise AssertionError(f"no {what} within {timeout} s: "
                                      f"{[self._describe(x) for x in self.got[-40:]]}")
             return list(self.got)
+
+
+def wait_for_peers(session: Any, count: int = 1, timeout: float = 30.0) -> None:
+    """Until a Zenoh peer session has direct links to ``count`` peers (a station on the
+    direct data path, linked to the workers the router's gossip named); AssertionError after
+    ``timeout`` seconds."""
+    wait_until(lambda: len(list(session.info.peers_zid())) >= count, timeout=timeout,
+               what=f"direct links to {count} peer(s)")

@@ -19,7 +19,7 @@ from arcf.client import ServiceError, TrackingClient
 from arcf.data import data_root
 from arcf.eval import load_dataset
 from arcf.loadtools.procs import ServiceProcess, free_port
-from arcf.loadtools.waiting import next_result, wait_until
+from arcf.loadtools.waiting import next_result, wait_for_peers
 from arcf.schemas import Status, StatusRequest, decode, encode
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -212,8 +212,7 @@ def test_the_direct_path_holds_the_routers_rules(tmp_path: Path) -> None:
             station = direct_peer(tmp_path, "station-01", endpoint)
             intruder = direct_peer(tmp_path, "intruder", endpoint)
             for peer in (station, intruder):  # each linked to the worker itself
-                wait_until(lambda peer=peer: len(list(peer.info.peers_zid())) >= 1,
-                           timeout=30, what="a direct link to the worker")
+                wait_for_peers(peer)
             with TrackingClient(session=station, frame_congestion="block") as good, \
                     TrackingClient(session=intruder) as bad:
                 results = good.results("cam")

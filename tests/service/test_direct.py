@@ -20,7 +20,7 @@ from arcf.client.media.images import decode_compressed
 from arcf.data import data_root
 from arcf.eval import load_dataset
 from arcf.loadtools.procs import ServiceProcess
-from arcf.loadtools.waiting import next_result, wait_until
+from arcf.loadtools.waiting import next_result, wait_for_peers, wait_until
 
 pytestmark = [pytest.mark.integration,
               pytest.mark.skipif(not (data_root() / "uav123_10fps").is_dir(),
@@ -47,8 +47,7 @@ def test_frames_and_results_bypass_the_router() -> None:
         with TrackingClient(connect=[svc.endpoint], mode="peer",
                             frame_congestion="block") as station:
             # the router's gossip tells the station where the worker listens: a direct link
-            wait_until(lambda: len(list(station.session.info.peers_zid())) >= 1, timeout=30,
-                       what="the station linked to the worker")
+            wait_for_peers(station.session)
             errors = station.errors("nobody")
             station.publish_frame("nobody", data=data[0], seq=0)
             notice = errors.get(timeout=30)
