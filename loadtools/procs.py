@@ -149,11 +149,15 @@ class ServiceProcess(_Program):
 
 
 class RouterProcess(_Program):
-    """A plain Zenoh router (``arcf-router``) on a free loopback port."""
+    """A plain Zenoh router (``arcf-router``) on ``endpoint`` (a free loopback port unless
+    given), joined to the routers at ``connect`` (a mesh: each router connects to the others)."""
 
-    def __init__(self, *, quiet: bool = True) -> None:
-        self.endpoint = f"tcp/127.0.0.1:{free_port()}"
-        super().__init__("arcf.service.router", ["--listen", self.endpoint], quiet=quiet, env=None)
+    def __init__(self, endpoint: str | None = None, connect: Sequence[str] = (), *,
+                 quiet: bool = True) -> None:
+        self.endpoint = endpoint or f"tcp/127.0.0.1:{free_port()}"
+        peers = [arg for e in connect for arg in ("--connect", e)]
+        super().__init__("arcf.service.router", ["--listen", self.endpoint, *peers], quiet=quiet,
+                         env=None)
 
     def __enter__(self) -> RouterProcess:
         return self

@@ -52,6 +52,7 @@ class Service:
         from . import metrics
         from .cluster import Cluster
         from .control import ControlPlane
+        from .links import RouterLinks
         from .untracked import UntrackedNotices
         from .worker import worker_main
 
@@ -78,7 +79,10 @@ class Service:
                                   name=f"arcf-worker-{k}") for k in range(processes)]
         for p in self.procs:
             p.start()
-        self.cluster = Cluster(self.session, self.keys, s.instance_id)
+        session = self.session
+        self.cluster = Cluster(
+            self.session, self.keys, s.instance_id,
+            linked=None if s.mode == "router" else lambda: any(session.info.routers_zid()))
         self.control = ControlPlane(s, self.queues, __version__, responses=self.responses,
                                     cluster=self.cluster)
         self.cluster.on_change = self.control.rebalance
@@ -114,6 +118,8 @@ class Service:
             self.untracked.watch_frames()
         else:
             self.untracked.watch_publishers()
+        # an instance that is a router itself (the embedded one) links to no router
+        self.links = RouterLinks(self.session, metrics) if s.mode != "router" else None
         self._wait_for_workers(self.settings.worker_start_s)
         self.cluster.join()  # now others may hand streams to us, and we take ours
         self.ready_s = self._serve_a_start(self.settings.worker_start_s)
@@ -173,6 +179,8 @@ class Service:
             mp_connection.wait([p.sentinel for p in self.procs], timeout=0.2)
             memory.set(metrics.resident_bytes())
             self.untracked.tick()
+            if self.links is not None:
+                self.links.poll()
             for k, p in enumerate(self.procs):
                 if not p.is_alive() and not self._stop.is_set():
                     self._replace_worker(k)

@@ -27,6 +27,7 @@ import hashlib
 import logging
 import math
 import threading
+import time
 from collections import OrderedDict
 from collections.abc import Callable, Iterable
 from typing import Any
@@ -46,6 +47,8 @@ log = logging.getLogger(__name__)
 #: boxes of not-yet-registered sessions kept at most (a worker's readiness check's session is
 #: never registered: its box waits here until newer ones push it out)
 EARLY_BOXES = 4096
+#: how often a rebalance cut off from every router looks whether it is linked again
+LINK_POLL_S = 0.01
 
 
 def weight(key: str, member: str | int) -> int:
@@ -77,8 +80,14 @@ class Cluster:
     """
 
     def __init__(self, session: Any, keys: KeySpace, instance_id: str,
-                 on_change: Callable[[], None] | None = None) -> None:
+                 on_change: Callable[[], None] | None = None,
+                 linked: Callable[[], bool] | None = None) -> None:
         self.session = session
+        #: whether the instance is linked to a router now (None: it is one). An instance cut
+        #: off from its router sees every other instance's token vanish at once, and Zenoh
+        #: links it to another router of its list milliseconds later, the tokens coming back:
+        #: it acts on the membership once linked, not on what the lost link made it see
+        self.linked = linked
         self.keys = keys
         self.instance_id = instance_id
         self.on_change = on_change
@@ -275,6 +284,9 @@ class Cluster:
     def _notify_loop(self) -> None:
         while True:
             self._changed.wait()
+            if self.linked is not None:
+                while not self._closing and not self.linked():
+                    time.sleep(LINK_POLL_S)
             self._changed.clear()
             if self._closing:
                 return

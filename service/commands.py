@@ -107,9 +107,12 @@ class Confirmation:
 
 @dataclass(frozen=True)
 class Fenced:
-    """Worker ``worker`` dropped every session it ran (the instance's token was lost)."""
+    """Worker ``worker`` dropped every session it ran (the instance's token was lost): these
+    ``sessions``, and only these (a start the control plane sent meanwhile is applied after
+    the fence, and runs)."""
 
     worker: int
+    sessions: tuple[str, ...]
 
 
 @dataclass(frozen=True)

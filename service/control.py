@@ -175,7 +175,7 @@ class ControlPlane:
 
     def _take(self, item: Any) -> None:
         if isinstance(item, Fenced):
-            self._fenced(item.worker)
+            self._fenced(item.worker, item.sessions)
         elif isinstance(item, SessionsEnded):
             self.background.submit(self._ended, item)
         elif isinstance(item, SessionStats):
@@ -287,12 +287,17 @@ class ControlPlane:
                     log.error("could not end session %s: %s", rec.session_id, exc.message)
             log.info("session %s ended: station %s gone", rec.session_id, client_id)
 
-    def _fenced(self, worker: int) -> None:
-        """A worker dropped its sessions because this instance's token was lost (see
-        ``Worker._fence``): forget them, and rebalance once the instance is back."""
+    def _fenced(self, worker: int, sessions: Sequence[str]) -> None:
+        """A worker dropped ``sessions`` because this instance's token was lost (see
+        ``Worker._fence``): forget them, and rebalance once the instance is back. Only those:
+        a session a rebalance started on the worker meanwhile (a router switch drops and
+        restores the token within milliseconds) runs there, and must stay known here, or no
+        later rebalance would hand it over (two instances would track its stream)."""
         with self.lock:
-            for sid in [s for s, r in self.sessions.items() if r.worker == worker]:
-                del self.sessions[sid]
+            for sid in sessions:
+                rec = self.sessions.get(sid)
+                if rec is not None and rec.worker == worker:
+                    del self.sessions[sid]
         if self.cluster is not None:
             self.cluster.request_rebalance()
 

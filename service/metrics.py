@@ -76,6 +76,12 @@ CRASH_STRIKES = Counter(
     "against that stream); quarantine_after of them within quarantine_s quarantine it")
 QUARANTINES = Counter("arcf_streams_quarantined_total",
                       "Streams quarantined: they were in flight when workers died too often")
+ROUTERS = Gauge("arcf_zenoh_routers", "Zenoh routers the instance's main session is linked "
+                "to (0: cut off from the fleet's routers)", multiprocess_mode="livesum")
+ROUTER_RECONNECTS = Counter(
+    "arcf_router_reconnects_total",
+    "Links to a Zenoh router the instance made again after losing one (its router died or "
+    "was cut off, and Zenoh linked it to another endpoint of --connect, or the same one back)")
 STREAMS = Gauge("arcf_active_streams", "Streams with at least one session",
                 multiprocess_mode="livesum")
 SESSIONS = Gauge("arcf_active_sessions", "Tracking sessions", multiprocess_mode="livesum")

@@ -151,9 +151,10 @@ class Worker:
             if self.stop.is_set() else
             "this instance lost its place in the cluster; another instance resumes the session "
             "if one is live")
-        for s in self.table:
-            self._stop(s.session_id)
-        self.responses.put(Fenced(self.index))
+        dropped = tuple(s.session_id for s in self.table)
+        for sid in dropped:
+            self._stop(sid)
+        self.responses.put(Fenced(self.index, dropped))
 
     def _final_statuses(self, reason: str) -> None:
         """One last result per session, status ``stopped``: a ground station learns that its
