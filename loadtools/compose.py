@@ -58,8 +58,11 @@ class ComposeStack:
         return self.inspect(service)["State"].get("Health", {}).get("Status", "none")
 
     def wait_healthy(self, services: tuple[str, ...] = INSTANCES,
-                     timeout: float = 120) -> float:
-        """Seconds until every service's own HEALTHCHECK says healthy (raises on timeout)."""
+                     timeout: float = 300) -> float:
+        """Seconds until every service's own HEALTHCHECK says healthy (raises on timeout).
+        The deadline is far above an idle start (about 20 s): two instances warming their
+        trackers' kernels side by side on a 2-core machine that other work keeps busy took
+        over 120 s."""
         t0 = time.monotonic()
         status = dict.fromkeys(services, "")
         while time.monotonic() - t0 < timeout:

@@ -367,6 +367,21 @@ class Fleet:
         return self.ledger.window(t0, t1, [st.record for st in chosen])
 
 
+def balanced_streams(instances: Sequence[str], per_instance: int) -> list[str]:
+    """Stream ids ``cam-<k>``, ``per_instance`` owned by each of ``instances`` by the
+    cluster's rendezvous hashing: a failover run knows which streams each instance owns."""
+    from arcf.service.cluster import owner
+
+    names: list[str] = []
+    for k in range(100 * per_instance * len(instances)):
+        name = f"cam-{k}"
+        if sum(owner(n, instances) == owner(name, instances) for n in names) < per_instance:
+            names.append(name)
+        if len(names) == per_instance * len(instances):
+            return names
+    raise ValueError(f"no {per_instance} stream ids for each of {list(instances)}")
+
+
 def failover_fleet(client: Any, clip: Clip, names: Sequence[str], *, preset: str, fps: float,
                    frames: int) -> Fleet:
     """The streams failover runs watch: one per name (the names decide which instance owns

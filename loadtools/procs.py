@@ -153,11 +153,15 @@ class RouterProcess(_Program):
     given), joined to the routers at ``connect`` (a mesh: each router connects to the others)."""
 
     def __init__(self, endpoint: str | None = None, connect: Sequence[str] = (), *,
-                 quiet: bool = True) -> None:
+                 metrics: bool = False, quiet: bool = True) -> None:
         self.endpoint = endpoint or f"tcp/127.0.0.1:{free_port()}"
         peers = [arg for e in connect for arg in ("--connect", e)]
-        super().__init__("arcf.service.router", ["--listen", self.endpoint, *peers], quiet=quiet,
-                         env=None)
+        port = free_port() if metrics else -1
+        #: its Prometheus endpoint (``metrics``), else None
+        self.metrics_url = f"http://127.0.0.1:{port}/metrics" if metrics else None
+        super().__init__("arcf.service.router", ["--listen", self.endpoint, *peers,
+                                                 "--metrics-port", str(port)],
+                         quiet=quiet, env=None)
 
     def __enter__(self) -> RouterProcess:
         return self

@@ -205,10 +205,19 @@ def test_prometheus_scrapes_both_instances(stack: Stack) -> None:
         targets = stack.prometheus("/api/v1/targets")["activeTargets"]
         health.clear()
         health.update({t["labels"]["instance"]: t["health"] for t in targets
-                       if t["labels"]["job"] == "arcf-service"})
-        return health == dict.fromkeys(INSTANCES, "up")
+                       if t["labels"]["job"] in ("arcf-service", "zenoh-router")})
+        return health == dict.fromkeys([*INSTANCES, "zenoh-router"], "up")
 
-    wait_until(all_up, timeout=60, what=f"both instances up in Prometheus ({health})")
+    wait_until(all_up, timeout=60,
+               what=f"both instances and the router up in Prometheus ({health})")
+    groups = stack.prometheus("/api/v1/rules")["groups"]
+    assert [g["name"] for g in groups] == ["arcf-fleet"]  # the alerts are loaded...
+
+    def evaluated() -> bool:  # ...and evaluate (every 15 s; "unknown" until the first time)
+        rules = stack.prometheus("/api/v1/rules")["groups"][0]["rules"]
+        return all(r["health"] == "ok" for r in rules)
+
+    wait_until(evaluated, timeout=60, what="every alert rule evaluated without error")
 
     # the previous test's frames were counted and scraped (5 s interval)
     def total() -> float:

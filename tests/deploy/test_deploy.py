@@ -40,8 +40,11 @@ def arcf_services(doc: dict[str, Any]) -> dict[str, dict[str, Any]]:
 
 
 def exported_metrics() -> set[str]:
+    """The service's metrics and arcf-router's."""
     text = (ROOT / "service" / "metrics.py").read_text()
-    return set(re.findall(r'"(arcf_[a-z_]+)"', text))
+    router = (ROOT / "service" / "router.py").read_text()
+    return (set(re.findall(r'"(arcf_[a-z_]+)"', text))
+            | set(re.findall(r'"(arcf_router[a-z_]*)"', router)))
 
 
 # ---------------------------------------------------------------------------------- compose

@@ -20,11 +20,12 @@ pytest.importorskip("zenoh")
 from arcf.client import TrackingClient
 from arcf.data import data_root
 from arcf.eval import load_dataset
-from arcf.loadtools.driver import Clip, failover_fleet
+from arcf.loadtools.driver import Clip, balanced_streams, failover_fleet
 from arcf.loadtools.ledger import Ledger
 from arcf.loadtools.procs import RouterProcess, ServiceProcess, free_port
 from arcf.loadtools.waiting import wait_until
 from arcf.service.cluster import owner
+from arcf.service.scrape import by_label, fetch
 
 pytestmark = [pytest.mark.integration,
               pytest.mark.skipif(not (data_root() / "uav123_10fps").is_dir(),
@@ -37,18 +38,6 @@ IDS = ["inst-a", "inst-b"]
 DEADLINE_S = 60.0
 
 
-def two_each() -> list[str]:
-    """Four stream ids, two owned by each instance."""
-    names: list[str] = []
-    for k in range(1000):
-        name = f"cam-{k}"
-        if sum(owner(n, IDS) == owner(name, IDS) for n in names) < 2:
-            names.append(name)
-        if len(names) == 4:
-            return names
-    raise AssertionError("no stream names found")
-
-
 def results_after(ledger: Ledger, names: list[str], t: float, n: int) -> None:
     def ok() -> bool:
         return all(sum(r.t > t for r in list(ledger[name].received)) >= n for name in names)
@@ -58,10 +47,11 @@ def results_after(ledger: Ledger, names: list[str], t: float, n: int) -> None:
 
 def test_a_dead_router_loses_only_what_was_attached_to_it() -> None:
     seq = load_dataset("uav123_10fps", sequences=["truck4_1"])[0]
-    streams = two_each()
+    streams = balanced_streams(IDS, 2)
     a_end, b_end = (f"tcp/127.0.0.1:{free_port()}" for _ in range(2))
     # each router connects to the other: whichever starts first, they join
-    router_a, router_b = RouterProcess(a_end, [b_end]), RouterProcess(b_end, [a_end])
+    router_a = RouterProcess(a_end, [b_end], metrics=True)
+    router_b = RouterProcess(b_end, [a_end], metrics=True)
     instances: dict[str, ServiceProcess] = {}
     client = fleet = None
     try:
@@ -83,6 +73,13 @@ def test_a_dead_router_loses_only_what_was_attached_to_it() -> None:
             assert svc.metric("arcf_zenoh_routers") == 1
         assert sum(svc.metric("arcf_router_reconnects_total")
                    for svc in instances.values()) == 0
+
+        # each router's own metrics: the other router, and its clients (station, instances
+        # and their workers)
+        linked = {name: by_label(fetch(r.metrics_url), "arcf_router_sessions", "whatami")
+                  for name, r in (("a", router_a), ("b", router_b)) if r.metrics_url}
+        assert linked["a"]["router"] == linked["b"]["router"] == 1
+        assert linked["a"]["client"] == 3 and linked["b"]["client"] == 2  # station on A
 
         def station_routers() -> set[str]:
             assert client is not None
@@ -110,6 +107,10 @@ def test_a_dead_router_loses_only_what_was_attached_to_it() -> None:
             wait_until(lambda svc=svc: svc.metric("arcf_active_sessions") == 2,
                        timeout=DEADLINE_S, what=f"two sessions on {iid} again")
         assert sorted(client.status().instances) == IDS
+        assert router_b.metrics_url is not None
+        wait_until(lambda: by_label(fetch(router_b.metrics_url), "arcf_router_sessions",
+                                    "whatami") == {"client": 5, "peer": 0, "router": 0},
+                   timeout=DEADLINE_S, what="everything on router B, alone")
 
         # settled: one owner per stream, every frame answered once, in order
         t_settled = time.monotonic()
