@@ -39,12 +39,16 @@ def make_config(
     config_file: Path | None = None,
     lease_ms: int | None = None,
     max_message_size: int | None = None,
+    open_timeout_ms: int | None = None,
 ) -> zenoh.Config:
     """A Zenoh config: the file (if any), then mode, explicit endpoints and scouting off.
 
     Endpoints are always explicit (a peer's default listens on every interface) and multicast
     scouting is off, so a service on loopback stays on loopback. ``max_message_size`` bounds
     what this session reassembles from a link (Zenoh's default: 1 GiB per message).
+    ``open_timeout_ms``: how long opening a link to one endpoint may take before the next
+    of ``connect`` is tried (Zenoh's default, 10 s, is what a client whose router became
+    unreachable, not dead, waits on it before moving to the next one).
     """
     conf = zenoh.Config.from_file(str(config_file)) if config_file else zenoh.Config()
     conf.insert_json5("mode", json.dumps(mode))
@@ -57,6 +61,8 @@ def make_config(
         conf.insert_json5("transport/link/tx/lease", str(int(lease_ms)))
     if max_message_size:
         conf.insert_json5("transport/link/rx/max_message_size", str(int(max_message_size)))
+    if open_timeout_ms:
+        conf.insert_json5("transport/unicast/open_timeout", str(int(open_timeout_ms)))
     return conf
 
 

@@ -69,11 +69,13 @@ class _Program:
     first stdout line says so (within ``start_s``; else it is killed)."""
 
     def __init__(self, module: str, args: list[str], *, quiet: bool,
-                 env: Mapping[str, str] | None, start_s: float = 180.0) -> None:
+                 env: Mapping[str, str] | None, start_s: float = 180.0,
+                 prefix: Sequence[str] = ()) -> None:
         # the log goes to a file, not a pipe: nobody reads a pipe during a long run, and a
         # full pipe would block the program's logging threads (and with them the program)
         self._log = tempfile.TemporaryFile(mode="w+") if quiet else None  # noqa: SIM115
-        self.proc = subprocess.Popen([sys.executable, "-m", module, *args],
+        # ``prefix``: e.g. ``ip netns exec <ns>``, which execs the program (same pid)
+        self.proc = subprocess.Popen([*prefix, sys.executable, "-m", module, *args],
                                      stdout=subprocess.PIPE, stderr=self._log, text=True,
                                      env={**os.environ, **(env or {})})
         assert self.proc.stdout is not None
@@ -127,7 +129,8 @@ class ServiceProcess(_Program):
 
     def __init__(self, *extra: str, connect: str | None = None, listen: str | None = None,
                  workers: int = 2, metrics: bool = True, quiet: bool = True,
-                 env: Mapping[str, str] | None = None) -> None:
+                 env: Mapping[str, str] | None = None, prefix: Sequence[str] = (),
+                 metrics_host: str = "127.0.0.1") -> None:
         if connect:
             self.endpoint = connect
             where = ["--mode", "client", "--connect", connect]
@@ -135,9 +138,12 @@ class ServiceProcess(_Program):
             self.endpoint = listen or f"tcp/127.0.0.1:{free_port()}"
             where = ["--listen", self.endpoint]
         metrics_port = free_port() if metrics else -1
-        self.metrics_url = f"http://127.0.0.1:{metrics_port}/metrics" if metrics else None
-        super().__init__("arcf.service.app", [*where, "--workers", str(workers), "--metrics-port",
-                                         str(metrics_port), *extra], quiet=quiet, env=env)
+        self.metrics_url = (f"http://{metrics_host}:{metrics_port}/metrics" if metrics
+                            else None)
+        super().__init__("arcf.service.app",
+                         [*where, "--workers", str(workers), "--metrics-host", metrics_host,
+                          "--metrics-port", str(metrics_port), *extra],
+                         quiet=quiet, env=env, prefix=prefix)
         self.workers = worker_pids(self.proc.pid)
 
     def metric(self, name: str) -> float:
@@ -153,15 +159,18 @@ class RouterProcess(_Program):
     given), joined to the routers at ``connect`` (a mesh: each router connects to the others)."""
 
     def __init__(self, endpoint: str | None = None, connect: Sequence[str] = (), *,
-                 metrics: bool = False, quiet: bool = True) -> None:
+                 metrics: bool = False, quiet: bool = True, prefix: Sequence[str] = (),
+                 metrics_host: str = "127.0.0.1", lease_ms: int | None = None) -> None:
         self.endpoint = endpoint or f"tcp/127.0.0.1:{free_port()}"
         peers = [arg for e in connect for arg in ("--connect", e)]
         port = free_port() if metrics else -1
         #: its Prometheus endpoint (``metrics``), else None
-        self.metrics_url = f"http://127.0.0.1:{port}/metrics" if metrics else None
-        super().__init__("arcf.service.router", ["--listen", self.endpoint, *peers,
-                                                 "--metrics-port", str(port)],
-                         quiet=quiet, env=None)
+        self.metrics_url = f"http://{metrics_host}:{port}/metrics" if metrics else None
+        super().__init__("arcf.service.router",
+                         ["--listen", self.endpoint, *peers, "--metrics-host", metrics_host,
+                          "--metrics-port", str(port),
+                          *(["--lease-ms", str(lease_ms)] if lease_ms else [])],
+                         quiet=quiet, env=None, prefix=prefix)
 
     def __enter__(self) -> RouterProcess:
         return self

@@ -102,6 +102,13 @@ class Cluster:
             OrderedDict()
         self.joined = False
         self._changed = threading.Event()
+        #: another instance appeared (joined, or came back from a partition): registries are
+        #: merged before the next rebalance. What one side of a partition put or deleted
+        #: never reached the other (Zenoh does not replay publications), so a session one
+        #: side ended, its station out of sight, may still run on the other, its station
+        #: in sight: the union is kept, and a station really gone ends its sessions again
+        #: after client_grace_s.
+        self._resync = threading.Event()
         self._closing = False
         self._token: Any = None
         self._subs: list[Any] = []
@@ -114,7 +121,6 @@ class Cluster:
         """Follow the registry and the workers' last boxes, fetch the others' registry, but do
         not join yet: the instance announces itself (:meth:`join`) once its workers are
         ready."""
-        import zenoh
 
         self._subs.append(self.session.declare_subscriber(self.keys.registry_all(),
                                                           self._on_registry))
@@ -122,10 +128,7 @@ class Cluster:
                                                           self._on_last_boxes))
         self._queryable = self.session.declare_queryable(self.keys.registry_all(),
                                                          self._on_registry_query)
-        for reply in self.session.get(self.keys.registry_all(), timeout=2.0,
-                                      target=zenoh.QueryTarget.ALL):
-            if reply.ok is not None:
-                self._merge(reply.ok.payload.to_bytes())
+        self._fetch_registry()
         self._subs.append(self.session.liveliness().declare_subscriber(
             self.keys.all_instances(), self._on_member, history=True))
         self._thread.start()
@@ -186,6 +189,15 @@ class Cluster:
         assert spec is not None
         return spec.box, spec.frame_seq, False
 
+    def _fetch_registry(self) -> None:
+        """Ask every other instance for its registry and merge it (with its last boxes)."""
+        import zenoh
+
+        for reply in self.session.get(self.keys.registry_all(), timeout=2.0,
+                                      target=zenoh.QueryTarget.ALL):
+            if reply.ok is not None:
+                self._merge(reply.ok.payload.to_bytes())
+
     # ------------------------------------------------------------------ registry writes
     def publish(self, spec: SessionSpec) -> None:
         with self.lock:
@@ -206,6 +218,8 @@ class Cluster:
         with self.lock:
             if sample.kind == zenoh.SampleKind.PUT:
                 self.members.add(instance)
+                if instance != self.instance_id:
+                    self._resync.set()
             elif instance != self.instance_id:
                 self.members.discard(instance)
         log.info("instance %s %s; live: %s", instance,
@@ -290,6 +304,12 @@ class Cluster:
             self._changed.clear()
             if self._closing:
                 return
+            if self._resync.is_set():
+                self._resync.clear()
+                try:
+                    self._fetch_registry()
+                except Exception:  # the rebalance goes on with what is known
+                    log.exception("could not merge the other instances' registries")
             if self.joined and self.on_change is not None:
                 try:
                     self.on_change()

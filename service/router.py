@@ -88,6 +88,10 @@ def main(argv: list[str] | None = None) -> int:
                          "none)")
     ap.add_argument("--metrics-host", default="127.0.0.1",
                     help="the metrics' address (default 127.0.0.1)")
+    ap.add_argument("--lease-ms", type=int, default=None,
+                    help="the Zenoh lease: a link silent this long is closed (default: the "
+                         "config file's, else Zenoh's 10 s); what a hung or cut-off router "
+                         "or client costs before the others move on")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format=LOG_FORMAT)
     listen = args.listen or ["tcp/127.0.0.1:7447"]
@@ -95,7 +99,7 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     with open_session("router", listen=listen, connect=args.connect or (),
-                      config_file=args.zenoh_config) as session:
+                      config_file=args.zenoh_config, lease_ms=args.lease_ms) as session:
         metrics = ""
         if args.metrics_port >= 0:
             from importlib.metadata import version

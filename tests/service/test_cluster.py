@@ -101,3 +101,69 @@ def test_a_session_without_results_resumes_from_its_start_box() -> None:
     cluster.specs["s2"] = SessionSpec(session_id="s2", stream_id="cam", preset="bacf",
                                       box=(5, 6, 20, 30), frame_seq=7)
     assert cluster.resume_point("s2") == ((5.0, 6.0, 20.0, 30.0), 7, False)
+
+
+class _Registry:
+    """A Zenoh session as the cluster uses it to ask the others for their registry."""
+
+    def __init__(self, *specs: SessionSpec) -> None:
+        self.specs = specs
+        self.asked = 0
+        self.routers = ["r1"]
+
+    def get(self, key: str, **_: Any) -> list[Any]:
+        self.asked += 1
+        return [SimpleNamespace(ok=SimpleNamespace(payload=SimpleNamespace(
+            to_bytes=lambda s=s: encode(s)))) for s in self.specs]
+
+
+def _member(instance: str, put: bool) -> Any:
+    import zenoh
+
+    return SimpleNamespace(key_expr=f"arcf/v1/instances/{instance}",
+                           kind=zenoh.SampleKind.PUT if put else zenoh.SampleKind.DELETE)
+
+
+def test_an_instance_back_from_a_partition_gets_the_registry_it_missed() -> None:
+    """What the other side of a partition registered (or kept, while this side ended it) is
+    merged when another instance appears, before the rebalance that follows."""
+    import threading
+
+    spec = SessionSpec(session_id="s9", stream_id="cam-9", preset="bacf", box=(4, 4, 20, 20),
+                       frame_seq=0)
+    session = _Registry(spec)
+    rebalanced = threading.Event()
+    cluster = Cluster(session=session, keys=KeySpace(), instance_id="a",
+                      on_change=rebalanced.set, linked=lambda: bool(session.routers))
+    cluster.joined, cluster.members = True, {"a", "b"}
+    cluster._thread.start()
+    try:
+        cluster._on_member(_member("b", put=False))  # a partition: b out of sight
+        assert rebalanced.wait(10)
+        assert session.asked == 0 and cluster.spec("s9") is None
+        rebalanced.clear()
+        cluster._on_member(_member("b", put=True))  # healed
+        assert rebalanced.wait(10)
+        assert session.asked == 1 and cluster.spec("s9") == spec
+        assert cluster.live() == ["a", "b"]
+    finally:
+        cluster.close()
+
+
+def test_an_instance_cut_off_from_every_router_rebalances_once_linked_again() -> None:
+    import threading
+
+    session = _Registry()
+    session.routers = []
+    rebalanced = threading.Event()
+    cluster = Cluster(session=session, keys=KeySpace(), instance_id="a",
+                      on_change=rebalanced.set, linked=lambda: bool(session.routers))
+    cluster.joined, cluster.members = True, {"a", "b"}
+    cluster._thread.start()
+    try:
+        cluster._on_member(_member("b", put=False))  # seen gone: the link was lost
+        assert not rebalanced.wait(0.3)  # nothing taken over while cut off
+        session.routers = ["r2"]  # linked to another router
+        assert rebalanced.wait(10)
+    finally:
+        cluster.close()
