@@ -40,7 +40,7 @@ from typing import Any
 
 from .driver import balanced_streams
 from .netlab import NetLab
-from .procs import RouterProcess, ServiceProcess, _Program
+from .procs import Program, RouterProcess, ServiceProcess
 from .waiting import wait_until
 
 PORT = 7447
@@ -69,7 +69,7 @@ def run(*, phase_s: float = 8.0, settle_s: float = 90.0, fps: float = 5.0,
             routers[host] = stack.enter_context(RouterProcess(
                 local, [public(h) for h in HOSTS[:i]], prefix=lab.prefix(host),
                 lease_ms=lease_ms))
-            relays[host] = stack.enter_context(_Program(
+            relays[host] = stack.enter_context(Program(
                 "arcf.loadtools.relay",
                 ["--listen", f"{lab.address[host]}:{PORT}", "--to", f"127.0.0.1:{PORT}",
                  "--delay-ms", f"{delay_ms:g}"], quiet=True, env=None,
@@ -80,7 +80,7 @@ def run(*, phase_s: float = 8.0, settle_s: float = 90.0, fps: float = 5.0,
                 "--instance-id", instance_id(host), *others, "--lease-ms", str(lease_ms),
                 connect=local, workers=1, prefix=lab.prefix(host),
                 metrics_host=lab.address[host]))
-        station = stack.enter_context(_Program(
+        station = stack.enter_context(Program(
             "arcf.loadtools.station",
             [*(arg for h in HOSTS for arg in ("--connect", public(h))),
              "--streams", ",".join(streams), "--fps", f"{fps:g}",

@@ -64,7 +64,7 @@ def worker_pids(pid: int) -> set[int]:
     return workers
 
 
-class _Program:
+class Program:
     """A console program of this package started as ``python -m <module>``, ready when its
     first stdout line says so (within ``start_s``; else it is killed)."""
 
@@ -115,14 +115,14 @@ class _Program:
             self._log = None
         return code
 
-    def __enter__(self) -> _Program:
+    def __enter__(self) -> Program:
         return self
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
 
 
-class ServiceProcess(_Program):
+class ServiceProcess(Program):
     """One ``arcf-service``: by default with its embedded router listening on ``listen`` (a free
     loopback port unless given); with ``connect``, a client-mode instance of a multi-instance
     deployment. Metrics on a free port unless ``metrics`` is False."""
@@ -154,7 +154,7 @@ class ServiceProcess(_Program):
         return self
 
 
-class RouterProcess(_Program):
+class RouterProcess(Program):
     """A plain Zenoh router (``arcf-router``) on ``endpoint`` (a free loopback port unless
     given), joined to the routers at ``connect`` (a mesh: each router connects to the others)."""
 
