@@ -41,7 +41,7 @@ from mcap.writer import CompressionType, Writer
 
 from arcf.client import TrackingClient, foxglove
 from arcf.client.media.encodings import codec_of, decode_image, encode_image
-from arcf.schemas import Result
+from arcf.schemas import Result, to_json
 from arcf.schemas.export import message_schema
 
 from ._command import add_service_arguments, connect
@@ -188,7 +188,7 @@ class Recorder:
             results = self._channel(
                 f"/arcf/{self.stream_id}/results", RESULTS_SCHEMA, "jsonschema",
                 json.dumps(message_schema(Result)).encode(), "json")
-            self._write(results, result.model_dump_json().encode(), result.capture_ts_ns)
+            self._write(results, to_json(result), result.capture_ts_ns)
             self.results += 1
             if result.status.value in ("error", "stopped") or not all(
                     np.isfinite(result.box)):

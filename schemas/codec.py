@@ -14,6 +14,8 @@ little as msgpack allows: once by :func:`encode` (into the output buffer) and on
 
 from __future__ import annotations
 
+import json
+import math
 import re
 import threading
 from enum import Enum
@@ -46,6 +48,7 @@ __all__ = [
     "UnsupportedVersion",
     "decode",
     "encode",
+    "to_json",
 ]
 
 #: Largest ``bin`` (frame payload) :func:`decode` accepts by default: 16 MiB, a 4K raw BGR frame
@@ -249,6 +252,28 @@ def encode(model: Message) -> bytes:
     for name, value in tail:
         parts += (packer.pack(name), _bin_header(len(value)), value)
     return b"".join(parts)
+
+
+def to_json(model: Message) -> bytes:
+    """A message as JSON, in the same form as on the wire (``v`` and ``type`` first, ``None``
+    fields omitted): what the exported JSON Schema of its type validates. JSON has no NaN:
+    a non-finite number (the box of a result with no box) is written ``null``, as every JSON
+    reader takes it. For records of messages without ``bytes`` fields (a recording's
+    results); a frame's payload has no JSON form."""
+    if not isinstance(model, Message):
+        raise TypeError(f"to_json() needs a schemas message model, got {type(model).__name__}")
+    return json.dumps(_finite(_fields(model, {"v": SCHEMA_VERSION, "type": model.type})),
+                      allow_nan=False).encode()
+
+
+def _finite(value: Any) -> Any:
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite(v) for v in value]
+    return value
 
 
 # ---------------------------------------------------------------------------------------------

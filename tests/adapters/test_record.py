@@ -120,6 +120,48 @@ def test_every_frame_and_result_is_recorded_in_foxglove_schemas(service, clip,
             assert a.texts[0].text.startswith(sid[:8])
 
 
+def test_readers_nobody_here_wrote_read_every_message(service, clip, tmp_path: Path) -> None:
+    """Foxglove's own ros2msg decoder (mcap-ros2-support) decodes every image and annotation
+    from the schema text the file carries, and every result validates against the JSON Schema
+    the file carries (the jsonschema package): a viewer needs nothing of ours."""
+    jsonschema = pytest.importorskip("jsonschema")
+    ros2 = pytest.importorskip("mcap_ros2.decoder")
+    seq, frames = clip
+    with TrackingClient(connect=[service.endpoint], frame_congestion="block") as client:
+        with Recorder(client, "other", tmp_path) as recorder:
+            got = replay(client, "other", frames, seq.init_box, ["bacf"], recorder=recorder)
+        files = recorder.files
+    factory = ros2.DecoderFactory()
+    decoded: dict[str, list] = {}
+    for topic, entries in messages(files).items():
+        for schema, channel, message in entries:
+            if channel.message_encoding == "json":
+                assert schema.encoding == "jsonschema"
+                body = json.loads(message.data)
+                jsonschema.validate(body, json.loads(schema.data))
+                decoded.setdefault(topic, []).append(body)
+            else:
+                decoder = factory.decoder_for(channel.message_encoding, schema)
+                assert decoder is not None, (channel.message_encoding, schema.encoding)
+                decoded.setdefault(topic, []).append((message, decoder(message.data)))
+    images = decoded["/arcf/other/image"]
+    assert [bytes(m.data) for _, m in images] == frames
+    for raw, m in images:  # the header's stamp is the frame's capture time
+        assert m.format == "jpeg" and m.frame_id == "other"
+        assert m.timestamp.sec * 10**9 + m.timestamp.nanosec == raw.publish_time
+    (sid,) = {r.session_id for r in got}
+    notes = decoded[f"/arcf/other/sessions/{sid}/annotations"]
+    assert len(notes) == N
+    by_time = {r.capture_ts_ns: r for r in got}
+    for raw, a in notes:
+        x, y, w, h = by_time[raw.publish_time].box
+        (shape,) = a.points
+        assert [(p.x, p.y) for p in shape.points] == [
+            (x - 1, y - 1), (x - 1 + w, y - 1), (x - 1 + w, y - 1 + h), (x - 1, y - 1 + h)]
+    results = [r for r in decoded["/arcf/other/results"] if r["status"] != "stale"]
+    assert sorted(r["frame_seq"] for r in results) == list(range(N))
+
+
 def test_a_recording_rescores_as_the_library_on_the_same_frames(service, clip,
                                                                 tmp_path: Path) -> None:
     seq, frames = clip

@@ -267,6 +267,31 @@ def test_result_floats_may_be_nan() -> None:
     assert back.status is ResultStatus.ERROR and back.message == "tracker failed"
 
 
+def test_json_form_is_the_wire_map_and_validates_against_the_exported_schema() -> None:
+    """``to_json``: a recording's results as a JSON reader takes them (no NaN token) and as
+    the JSON Schema of their type validates them (``v`` and ``type``, no ``None``)."""
+    import json
+
+    jsonschema = pytest.importorskip("jsonschema")
+    from arcf.schemas import to_json
+    from arcf.schemas.export import message_schema
+
+    tracked = samples()["result"]
+    lost = tracked.model_copy(update={"box": (NAN, NAN, NAN, NAN), "peak": NAN,
+                                      "aberrance_release": math.inf})
+    for result in (tracked, lost):
+        text = to_json(result).decode()
+        assert "NaN" not in text and "Infinity" not in text
+        body = json.loads(text)
+        assert list(body)[:2] == ["v", "type"] and body["v"] == SCHEMA_VERSION
+        # the wire's map (no None field), the non-finite numbers as null
+        nulls = {"box": [None] * 4, "peak": None, "aberrance_release": None}
+        assert body == {**msgpack.unpackb(encode(result)), **(nulls if result is lost else {})}
+    jsonschema.validate(json.loads(to_json(tracked)), message_schema(Result))
+    with pytest.raises(TypeError):
+        to_json(object())  # type: ignore[arg-type]
+
+
 def test_start_defaults_and_normalisation() -> None:
     start = decode(packed(START), StartRequest)
     assert start.box == (10.0, 20.0, 30.0, 40.0) and all(type(x) is float for x in start.box)
