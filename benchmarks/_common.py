@@ -9,6 +9,11 @@ alike; each benchmark gives its own defaults.
 from __future__ import annotations
 
 import argparse
+import json
+import statistics
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
 
 
 def parser(doc: str | None, *, preset: str | None = None, fps: float | None = None,
@@ -23,3 +28,18 @@ def parser(doc: str | None, *, preset: str | None = None, fps: float | None = No
     if fps is not None:
         ap.add_argument("--fps", type=float, default=fps, help=fps_help)
     return ap
+
+
+def spread(values: Sequence[float], fmt: str = "{:.0f}", unit: str = "") -> str:
+    """``median unit (min–max)`` of repeated measurements, "–" for none."""
+    if not values:
+        return "–"
+    low, mid, high = (fmt.format(v) for v in (min(values), statistics.median(values),
+                                                 max(values)))
+    return f"{mid}{unit} ({low}–{high})"
+
+
+def write_trials(path: Path | None, machine: dict[str, Any], trials: list[Any]) -> None:
+    """Every trial's figures, with the machine they ran on, as JSON at ``path`` (if any)."""
+    if path is not None:
+        path.write_text(json.dumps({"machine": machine, "trials": trials}, indent=2))

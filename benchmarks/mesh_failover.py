@@ -20,15 +20,13 @@ switch); and once settled, that each instance runs two sessions and no frame of 
 
 from __future__ import annotations
 
-import json
 import signal
-import statistics
 import sys
 import time
 from pathlib import Path
 from typing import Any
 
-from _common import parser  # beside this script
+from _common import parser, spread, write_trials  # beside this script
 
 from arcf.client import TrackingClient
 from arcf.eval import load_dataset
@@ -128,9 +126,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{time.strftime('%Y-%m-%d')}, {m['cpu']} ({m['nproc']} cores), {m['software']}; "
           f"{args.trials} trials, 4 streams at {args.fps:g} fps, router A SIGKILLed\n")
 
-    def spread(values: list[float]) -> str:
-        return (f"{1e3 * statistics.median(values):.0f} ms "
-                f"({1e3 * min(values):.0f}–{1e3 * max(values):.0f})")
+    def ms(values: list[float]) -> str:
+        return spread([1e3 * v for v in values], unit=" ms")
 
     relinked = [t["station_relinked_s"] for t in trials if t["station_relinked_s"] is not None]
     moved = [t["outage_s"][n] for t in trials for n in t["lost_instance_streams"]]
@@ -138,20 +135,18 @@ def main(argv: list[str] | None = None) -> int:
               if n not in t["lost_instance_streams"]]
     print("| measured | median (min–max) over trials and streams |")
     print("| --- | --- |")
-    print(f"| station linked to router B, after the kill | {spread(relinked)} "
+    print(f"| station linked to router B, after the kill | {ms(relinked)} "
           f"({len(relinked)}/{len(trials)} trials) |")
-    print(f"| instance a's streams: kill to the first `resumed` result | {spread(moved)} |")
-    print(f"| instance b's streams: kill to the next result | {spread(stayed)} |")
+    print(f"| instance a's streams: kill to the first `resumed` result | {ms(moved)} |")
+    print(f"| instance b's streams: kill to the next result | {ms(stayed)} |")
     for key, label in (("frames_unanswered", "frames never answered, per trial"),
                        ("frames_answered_twice", "frames answered twice, per trial"),
                        ("answered_twice_after_settling",
                         "frames answered twice once settled, per trial")):
-        values = [t[key] for t in trials]
-        print(f"| {label} | {statistics.median(values):g} ({min(values)}–{max(values)}) |")
+        print(f"| {label} | {spread([t[key] for t in trials], '{:g}')} |")
     print(f"| instance a's reconnects counted | "
           f"{sorted(t['reconnects']['inst-a'] for t in trials)} |")
-    if args.json:
-        args.json.write_text(json.dumps({"machine": m, "trials": trials}, indent=2))
+    write_trials(args.json, m, trials)
     return 0
 
 

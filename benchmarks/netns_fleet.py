@@ -14,13 +14,11 @@ own streams again and ``--phase-s`` more (:mod:`arcf.loadtools.netfleet`). Zenoh
 
 from __future__ import annotations
 
-import json
-import statistics
 import sys
 import time
 from pathlib import Path
 
-from _common import parser  # beside this script
+from _common import parser, spread, write_trials  # beside this script
 
 from arcf.loadtools import netfleet
 from arcf.loadtools.netlab import unavailable
@@ -47,12 +45,6 @@ def main(argv: list[str] | None = None) -> int:
           f"{args.trials} trials, 6 streams at {args.fps:g} fps, phases of {args.phase_s:g} s, "
           f"slow = {args.delay_ms:g} ms each way and {100 * args.loss:g} % loss each way\n")
 
-    def spread(values: list[float], fmt: str = "{:.0f}") -> str:
-        if not values:
-            return "–"
-        return (fmt.format(statistics.median(values)) + " (" + fmt.format(min(values)) + "–"
-                + fmt.format(max(values)) + ")")
-
     print("| phase | frames answered | answered twice | longest silence of a stream (s) "
           "| station relinked after (s) |")
     print("| --- | --- | --- | --- | --- |")
@@ -70,8 +62,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"\nAfter the link was restored: every instance ran its own two streams again after "
           f"{spread(settle, '{:.1f}')} s ({one_owner}/{len(trials)} trials); frames answered "
           f"twice after that: {sum(t['answered_twice_after_settling'] for t in trials)}.")
-    if args.json:
-        args.json.write_text(json.dumps({"machine": m, "trials": trials}, indent=2))
+    write_trials(args.json, m, trials)
     return 0
 
 

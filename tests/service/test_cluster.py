@@ -124,19 +124,26 @@ def _member(instance: str, put: bool) -> Any:
                            kind=zenoh.SampleKind.PUT if put else zenoh.SampleKind.DELETE)
 
 
-def test_an_instance_back_from_a_partition_gets_the_registry_it_missed() -> None:
-    """What the other side of a partition registered (or kept, while this side ended it) is
-    merged when another instance appears, before the rebalance that follows."""
+def _running(session: _Registry) -> tuple[Cluster, Any]:
+    """A joined cluster of instances a and b, its rebalancing thread running; the event its
+    rebalances set."""
     import threading
 
-    spec = SessionSpec(session_id="s9", stream_id="cam-9", preset="bacf", box=(4, 4, 20, 20),
-                       frame_seq=0)
-    session = _Registry(spec)
     rebalanced = threading.Event()
     cluster = Cluster(session=session, keys=KeySpace(), instance_id="a",
                       on_change=rebalanced.set, linked=lambda: bool(session.routers))
     cluster.joined, cluster.members = True, {"a", "b"}
     cluster._thread.start()
+    return cluster, rebalanced
+
+
+def test_an_instance_back_from_a_partition_gets_the_registry_it_missed() -> None:
+    """What the other side of a partition registered (or kept, while this side ended it) is
+    merged when another instance appears, before the rebalance that follows."""
+    spec = SessionSpec(session_id="s9", stream_id="cam-9", preset="bacf", box=(4, 4, 20, 20),
+                       frame_seq=0)
+    session = _Registry(spec)
+    cluster, rebalanced = _running(session)
     try:
         cluster._on_member(_member("b", put=False))  # a partition: b out of sight
         assert rebalanced.wait(10)
@@ -151,15 +158,9 @@ def test_an_instance_back_from_a_partition_gets_the_registry_it_missed() -> None
 
 
 def test_an_instance_cut_off_from_every_router_rebalances_once_linked_again() -> None:
-    import threading
-
     session = _Registry()
     session.routers = []
-    rebalanced = threading.Event()
-    cluster = Cluster(session=session, keys=KeySpace(), instance_id="a",
-                      on_change=rebalanced.set, linked=lambda: bool(session.routers))
-    cluster.joined, cluster.members = True, {"a", "b"}
-    cluster._thread.start()
+    cluster, rebalanced = _running(session)
     try:
         cluster._on_member(_member("b", put=False))  # seen gone: the link was lost
         assert not rebalanced.wait(0.3)  # nothing taken over while cut off
