@@ -45,9 +45,9 @@ def main(argv: list[str] | None = None) -> int:
           f"{args.trials} trials, 6 streams at {args.fps:g} fps, phases of {args.phase_s:g} s, "
           f"slow = {args.delay_ms:g} ms each way and {100 * args.loss:g} % loss each way\n")
 
-    print("| phase | frames answered | answered twice | longest silence of a stream (s) "
-          "| station relinked after (s) |")
-    print("| --- | --- | --- | --- | --- |")
+    print("| phase | frames answered | answered twice | latency p50 (ms) "
+          "| longest silence of a stream (s) | station relinked after (s) |")
+    print("| --- | --- | --- | --- | --- | --- |")
     for k, phase in enumerate(netfleet.PHASES):
         rows = [t["phases"][k] for t in trials]
         share = [100 * r["answered"] / max(r["sent"], 1) for r in rows]
@@ -55,6 +55,7 @@ def main(argv: list[str] | None = None) -> int:
                    if r["station_relinked_after_s"] is not None]
         print(f"| {phase} | {spread(share, '{:.1f}')} % | "
               f"{spread([r['answered_twice'] for r in rows])} | "
+              f"{spread([1e3 * r['latency_p50_s'] for r in rows if r['latency_p50_s']])} | "
               f"{spread([r['longest_silence_s'] for r in rows], '{:.2f}')} | "
               f"{spread(relinks, '{:.2f}')} ({len(relinks)}/{len(rows)}) |")
     settle = [t["settle_s"] for t in trials]

@@ -22,9 +22,9 @@ Phases, each ``phase_s`` long, on host 1's link:
    its own streams' sessions again (or ``settle_s``, whichever comes first).
 
 The report, per phase: frames sent, answered, answered twice (two owners at once); the
-longest time any stream went without a result; when the station was linked to another
-router; and at the end the sessions each instance runs and what was answered twice after
-the fleet settled (one owner per stream: none).
+median capture-to-result latency; the longest time any stream went without a result; when
+the station was linked to another router; and at the end the sessions each instance runs and
+what was answered twice after the fleet settled (one owner per stream: none).
 """
 
 from __future__ import annotations
@@ -32,6 +32,7 @@ from __future__ import annotations
 import itertools
 import json
 import signal
+import statistics
 import tempfile
 import time
 from contextlib import ExitStack
@@ -137,6 +138,7 @@ def report(seen: dict[str, Any], marks: dict[str, float], owners: dict[str, floa
     for phase, t0, t1 in bounds:
         sent = answered = twice = 0
         silence = 0.0
+        latencies: list[float] = []
         for name in streams:
             record = seen["streams"][name]
             sent_here = {seq for seq, t in record["sent"] if t0 <= t < t1}
@@ -145,11 +147,13 @@ def report(seen: dict[str, Any], marks: dict[str, float], owners: dict[str, floa
             sent += len(sent_here)
             answered += len(set(seqs))
             twice += len(seqs) - len(set(seqs))
+            latencies += [r[5] for r in record["received"] if t0 <= r[0] < t1]
             times = [t0, *sorted(r[0] for r in record["received"] if t0 <= r[0] < t1), t1]
             silence = max(silence, max(b - a for a, b in itertools.pairwise(times)))
         relinks = [t - t0 for t, zids in seen["routers"] if t0 <= t < t1 and zids]
         phases.append({"phase": phase, "seconds": t1 - t0, "sent": sent, "answered": answered,
                        "answered_twice": twice, "longest_silence_s": silence,
+                       "latency_p50_s": statistics.median(latencies) if latencies else None,
                        "station_relinked_after_s": relinks[0] if relinks else None})
     late_twice = 0
     for name in streams:

@@ -75,8 +75,8 @@ def main(argv: list[str] | None = None) -> int:
         with record.cond:
             seen[name] = {
                 "sent": [[seq, t] for seq, t in record.sent],
-                "received": [[r.t, r.frame_seq, r.session_id, r.status, r.dropped]
-                             for r in record.received]}
+                "received": [[r.t, r.frame_seq, r.session_id, r.status, r.dropped,
+                              r.latency_s] for r in record.received]}
     args.out.write_text(json.dumps({"routers": routers, "streams": seen}))
     client.close()
     session.close()
