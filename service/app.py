@@ -82,7 +82,8 @@ class Service:
         session = self.session
         self.cluster = Cluster(
             self.session, self.keys, s.instance_id,
-            linked=None if s.mode == "router" else lambda: any(session.info.routers_zid()))
+            # a client reaches the others only through a router; a router or a peer may not
+            linked=(lambda: any(session.info.routers_zid())) if s.mode == "client" else None)
         self.control = ControlPlane(s, self.queues, __version__, responses=self.responses,
                                     cluster=self.cluster)
         self.cluster.on_change = self.control.rebalance
@@ -118,8 +119,8 @@ class Service:
             self.untracked.watch_frames()
         else:
             self.untracked.watch_publishers()
-        # an instance that is a router itself (the embedded one) links to no router
-        self.links = RouterLinks(self.session, metrics) if s.mode != "router" else None
+        # a client's link to its router (a router or a peer may have none, rightly)
+        self.links = RouterLinks(self.session, metrics) if s.mode == "client" else None
         self._wait_for_workers(self.settings.worker_start_s)
         self.cluster.join()  # now others may hand streams to us, and we take ours
         self.ready_s = self._serve_a_start(self.settings.worker_start_s)
