@@ -160,6 +160,8 @@ class _Camera:
     heard_at: float = 0.0
     #: what the station was last told: stale (True) or not
     stale: bool = False
+    #: the picture size the last CAMERA_INFORMATION carried (None: none sent yet)
+    told_size: tuple[int, int] | None = None
 
 
 @dataclass
@@ -509,6 +511,10 @@ class MavlinkCameras:
                 self._send(cam, mav.MAVLink_heartbeat_message(
                     mav.MAV_TYPE_CAMERA, mav.MAV_AUTOPILOT_INVALID, 0, 0,
                     mav.MAV_STATE_ACTIVE, 3))
+                # the stations that asked hear of a new picture size (the first frame, a
+                # camera restarted at another resolution) without asking again
+                if cam.told_size is not None and (self._size(cam) or (0, 0)) != cam.told_size:
+                    self._inform(cam)
         if (self.link_up and self._last_station is not None
                 and now - self._last_station > self.link_timeout_s):
             self.link_up = False
@@ -578,6 +584,14 @@ class MavlinkCameras:
             else mav.CAMERA_TRACKING_STATUS_FLAGS_ACTIVE,  # started, first result on its way
             mode, mav.CAMERA_TRACKING_TARGET_DATA_IN_STATUS if boxed else TARGET_DATA_NONE,
             *coords, 0)
+
+    def _inform(self, cam: _Camera) -> None:
+        """``CAMERA_INFORMATION``, and with a video stream its ``VIDEO_STREAM_INFORMATION``
+        (MAVSDK asks for that only every 20 s, and shows no video until then)."""
+        cam.told_size = self._size(cam) or (0, 0)
+        self._send(cam, self._information(cam))
+        if cam.config.video is not None:
+            self._send(cam, self._video_information(cam))
 
     def _information(self, cam: _Camera) -> Any:
         w, h = self._size(cam) or (0, 0)  # unreadable or too large: 0 x 0
@@ -734,7 +748,7 @@ class MavlinkCameras:
                       if cmd != mav.MAV_CMD_REQUEST_MESSAGE else whole(msg.param1))
             if wanted == mav.MAVLINK_MSG_ID_CAMERA_INFORMATION:
                 self._ack(cam, msg, mav.MAV_RESULT_ACCEPTED)
-                self._send(cam, self._information(cam))
+                self._inform(cam)
             elif wanted == mav.MAVLINK_MSG_ID_CAMERA_TRACKING_IMAGE_STATUS:
                 self._ack(cam, msg, mav.MAV_RESULT_ACCEPTED)
                 self._send(cam, self._status(cam))
@@ -765,12 +779,13 @@ class MavlinkCameras:
             self._ack(cam, msg, mav.MAV_RESULT_UNSUPPORTED)
 
     def _video_request(self, cam: _Camera, msg: Any, wanted: int, stream_id: float) -> None:
-        """``VIDEO_STREAM_INFORMATION`` or ``_STATUS`` of stream ``stream_id`` (0: all; the
-        camera has one, id 1): denied, with the reason, when the camera advertises none."""
+        """``VIDEO_STREAM_INFORMATION`` or ``_STATUS`` of stream ``stream_id`` (0 or NaN: all,
+        NaN being what MAVSDK sends; the camera has one, id 1): denied, with the reason, when
+        the camera advertises none."""
         if cam.config.video is None:
             self._ack(cam, msg, mav.MAV_RESULT_DENIED,
                       "no video stream configured for this camera (arcf-mavlink --video)")
-        elif whole(stream_id) not in (0, 1):
+        elif not math.isnan(stream_id) and whole(stream_id) not in (0, 1):
             self._ack(cam, msg, mav.MAV_RESULT_DENIED, f"no video stream {stream_id:g}")
         else:
             self._ack(cam, msg, mav.MAV_RESULT_ACCEPTED)

@@ -48,6 +48,7 @@ __all__ = [
     "UnsupportedVersion",
     "decode",
     "encode",
+    "from_json",
     "to_json",
 ]
 
@@ -396,9 +397,32 @@ def decode(
                 f"payload exceeds the {max_payload}-byte limit ({text})"
             ) from None
         raise MalformedMessage(f"not a single valid msgpack value: {text}") from None
-
     if not isinstance(obj, dict):
         raise MalformedMessage(f"message must be a msgpack map, got {type(obj).__name__}")
+    return _validate(obj, expected)
+
+
+def from_json(data: bytes | str, expected: type[Message] | tuple[type[Message], ...] | None = None,
+              ) -> Message:
+    """Decode and validate one message written as JSON (:func:`to_json`'s form, as a person
+    types it for Zenoh's command-line tools): the same checks and errors as :func:`decode`
+    after the parse. ``null`` stands for NaN in a number field that allows it (a box); JSON
+    has no ``bytes``, so a frame cannot be written this way."""
+    size = len(data)
+    if size > MAX_STR_LEN:
+        raise OversizedPayload(f"JSON message of {size} bytes exceeds {MAX_STR_LEN} bytes")
+    try:
+        obj = json.loads(data)
+    except (ValueError, RecursionError) as exc:  # JSONDecodeError, bad UTF-8, too deep
+        raise MalformedMessage(f"not a single valid JSON value: {_clip(str(exc))}") from None
+    if not isinstance(obj, dict):
+        raise MalformedMessage(f"message must be a JSON object, got {type(obj).__name__}")
+    return _validate(obj, expected)
+
+
+def _validate(obj: dict[Any, Any],
+              expected: type[Message] | tuple[type[Message], ...] | None) -> Message:
+    """A parsed message's envelope, kind and fields checked (:func:`decode`'s order)."""
     if "v" not in obj or "type" not in obj:
         missing = " and ".join(repr(key) for key in _ENVELOPE if key not in obj)
         raise MalformedMessage(f"message has no {missing} envelope key", **_ids(obj))

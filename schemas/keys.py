@@ -79,6 +79,14 @@ KEY_ROUTES: tuple[KeyRoute, ...] = (
         ("result",),
     ),
     KeyRoute(
+        "results as JSON",
+        "<prefix>/json/streams/<stream>/sessions/<session>/results",
+        "service puts, only while someone subscribes",
+        "the same results as JSON (the form of the exported schemas, NaN as null), for tools "
+        "that print text, such as Zenoh's z_sub",
+        ("result",),
+    ),
+    KeyRoute(
         "errors",
         "<prefix>/streams/<stream>/errors",
         "service puts",
@@ -176,6 +184,11 @@ class KeySpace:
         """``<prefix>/streams/<stream>/sessions/<session>/results``: one session's results."""
         stream = check_id(stream, "stream id")
         return f"{self.prefix}/streams/{stream}/sessions/{check_id(session, 'session id')}/results"
+
+    def json_results(self, stream: str, session: str) -> str:
+        """``<prefix>/json/streams/<stream>/sessions/<session>/results``: the same results as
+        JSON, published only while a subscriber matches it."""
+        return f"{self.prefix}/json/{self.results(stream, session)[len(self.prefix) + 1:]}"
 
     def results_of_stream(self, stream: str) -> str:
         """``<prefix>/streams/<stream>/sessions/*/results``: every session's results."""

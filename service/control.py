@@ -47,6 +47,8 @@ from arcf.schemas import (
     StopRequest,
     decode,
     encode,
+    from_json,
+    to_json,
 )
 
 from .cluster import Cluster, owner
@@ -550,18 +552,25 @@ class ControlPlane:
             query.reply(query.key_expr, reply)
 
     def handle(self, payload: bytes) -> bytes | None:
-        """The encoded reply to a request, or None when another instance owns the answer."""
+        """The encoded reply to a request, or None when another instance owns the answer.
+        A request written as JSON (a JSON object: its first byte ``{``, which no msgpack
+        map starts with) is answered in JSON, for Zenoh's own tools (``z_get``)."""
         from . import metrics
 
+        as_json = payload.lstrip()[:1] == b"{"
+        out = to_json if as_json else encode
         try:
-            request = cast(Request, decode(payload, expected=(
-                StartRequest, ReinitRequest, StopRequest, StatusRequest, PresetsRequest)))
+            accepted = (StartRequest, ReinitRequest, StopRequest, StatusRequest, PresetsRequest)
+            request = cast(Request, from_json(payload, accepted) if as_json
+                           else decode(payload, expected=accepted))
         except SchemaError as exc:
             if not self._mine("payload:" + hashlib.blake2b(payload, digest_size=8).hexdigest()):
                 return None
             metrics.CONTROL.labels(type="invalid", outcome=exc.code.value).inc()
             metrics.ERRORS.labels(kind=exc.code.value).inc()
-            return encode(ErrorMessage(code=exc.code.value, message=str(exc)))
+            return out(ErrorMessage(code=exc.code.value, message=str(exc),
+                                    request_id=exc.request_id, stream_id=exc.stream_id,
+                                    session_id=exc.session_id))
         kind = request.type  # the wire name: start, reinit, stop, status_request, ...
         if not self._answers(request):
             return None
@@ -575,12 +584,12 @@ class ControlPlane:
                                f"({type(exc).__name__}); its log says more")
             metrics.CONTROL.labels(type=kind, outcome=exc.code.value).inc()
             metrics.ERRORS.labels(kind=exc.code.value).inc()
-            return encode(ErrorMessage(code=exc.code, message=exc.message,
-                                       request_id=request.request_id,
-                                       stream_id=getattr(request, "stream_id", None),
-                                       session_id=getattr(request, "session_id", None)))
+            return out(ErrorMessage(code=exc.code, message=exc.message,
+                                    request_id=request.request_id,
+                                    stream_id=getattr(request, "stream_id", None),
+                                    session_id=getattr(request, "session_id", None)))
         metrics.CONTROL.labels(type=kind, outcome="ok").inc()
-        return encode(reply)
+        return out(reply)
 
     def _dispatch(self, request: Request) -> Reply:
         if isinstance(request, StartRequest):

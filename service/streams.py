@@ -15,10 +15,29 @@ import numpy as np
 
 from arcf.client.media.video import Decoded, StreamDecoder
 from arcf.region import Region, RegionFrame, cover
-from arcf.schemas import ErrorCode, ErrorMessage, encode
+from arcf.schemas import ErrorCode, ErrorMessage, Result, decode, encode, to_json
 
 from .commands import SessionStat
 from .intake import Inbox, Numbering
+
+
+class ResultsOut:
+    """Where a session's results go: msgpack on the contract's key, and the same results as
+    JSON on its mirror key (``KeySpace.json_results``) only while a subscriber matches that
+    (Zenoh's matching status): a person watching with ``z_sub`` reads them, and nobody pays
+    for the second form when nobody watches. ``wire`` and ``mirror`` are declared publishers."""
+
+    def __init__(self, wire: Any, mirror: Any) -> None:
+        self.wire, self.mirror = wire, mirror
+
+    def put(self, data: bytes) -> None:
+        self.wire.put(data)
+        if self.mirror.matching_status.matching:
+            self.mirror.put(to_json(decode(data, expected=Result)))
+
+    def undeclare(self) -> None:
+        self.wire.undeclare()
+        self.mirror.undeclare()
 
 
 @dataclass

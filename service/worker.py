@@ -53,7 +53,7 @@ from .placement import StreamLoad
 from .sessions import SessionTable
 from .settings import ServiceSettings
 from .stages import StageClock
-from .streams import Picture, Session, Stream
+from .streams import Picture, ResultsOut, Session, Stream
 from .supervision import InFlight
 from .tracking import Tracking
 from .turns import TurnBudget
@@ -391,10 +391,13 @@ class Worker:
         self.metrics.STREAMS.inc()
         return stream
 
-    def _declare_results(self, stream_id: str, session_id: str) -> Any:
-        return self.session.declare_publisher(
-            self.keys.results(stream_id, session_id),
-            congestion_control=self.zenoh.CongestionControl.DROP)
+    def _declare_results(self, stream_id: str, session_id: str) -> ResultsOut:
+        drop = self.zenoh.CongestionControl.DROP
+        return ResultsOut(
+            self.session.declare_publisher(self.keys.results(stream_id, session_id),
+                                           congestion_control=drop),
+            self.session.declare_publisher(self.keys.json_results(stream_id, session_id),
+                                           congestion_control=drop))
 
     # ------------------------------------------------------------------ moves
     def _prepare(self, stream_id: str) -> None:

@@ -267,6 +267,44 @@ def test_a_station_tracks_a_stream_another_publishes(service: dict[str, str]) ->
     assert seqs == sorted(seqs) and seqs[0] > 0, seqs  # from a frame after the start
 
 
+@checks("mavsdk_station.py")
+def test_mavsdk_tracks_through_arcf_mavlink_as_the_page_shows(service: dict[str, str]) -> None:
+    """docs/mavlink.md's MAVSDK station against ``arcf-mavlink`` started as that page says,
+    on a replayed stream: the camera, its video URI, a rectangle, ten statuses, a stop."""
+    pytest.importorskip("mavsdk")
+    from arcf.loadtools.procs import free_port
+
+    port = free_port()
+    uri = "rtsp://127.0.0.1:8554/cam1"
+    replay = Replay(service, "cam1", 600)  # bounded: 60 s at 10 fps, stopped when done
+    adapter = subprocess.Popen(
+        [str(Path(sys.executable).parent / "arcf-mavlink"), "-e", service["ARCF_ENDPOINT"],
+         "--camera", "cam1", "--video", f"cam1={uri}",
+         "--mavlink", f"udpout:127.0.0.1:{port}"],
+        cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        _wait_for_stream(service, "cam1")
+        # boat1's boat on its first frames, in shares of the 1280 x 720 picture
+        lines = run("mavsdk_station.py", f"udpin://127.0.0.1:{port}",
+                    "0.306,0.455,0.427,0.898").splitlines()
+    finally:
+        replay.stop()
+        adapter.terminate()
+        _, err = adapter.communicate(timeout=30)
+    assert lines[0] == "camera 100 ARCF tracker cam1 1280x720", (lines, err[-2000:])
+    assert lines[1] == f"video {uri}", lines
+    assert lines[2] == "track_rectangle SUCCESS", lines
+    statuses = [line.split(" ") for line in lines[3:13]]
+    assert all(s[0] == "status" and s[1] in ("ACTIVE", "ERROR", "ACTIVE|COASTING")
+               for s in statuses), lines
+    boxed = [s for s in statuses if "-" not in s[2:]]
+    assert boxed, lines  # the track's rectangle reached MAVSDK
+    for s in boxed:  # a rectangle inside the picture, left of right and above bottom
+        x0, y0, x1, y1 = (float(v) for v in s[2:])
+        assert 0 <= x0 < x1 <= 1 and 0 <= y0 < y1 <= 1, s
+    assert lines[13:] == ["track_stop SUCCESS", "status IDLE"], lines
+
+
 @checks("adapter.py")
 def test_an_adapter_speaks_in_shares_of_the_picture(service: dict[str, str]) -> None:
     replay = Replay(service, "cam1", 60)

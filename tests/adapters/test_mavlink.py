@@ -245,10 +245,24 @@ def test_a_ground_station_tracks_through_the_mavlink_camera(rig: dict[str, Any])
     result, texts = station.command(mav.MAV_CMD_CAMERA_TRACK_RECTANGLE, 0.4, 0.4, 0.6, 0.6)
     assert result == mav.MAV_RESULT_DENIED and any("no frames" in t for t in texts)
 
+    # the camera's information before its first frame: no size yet; once frames come, the
+    # station hears the size without asking again
+    t0 = time.monotonic()
+    result, _ = station.command(mav.MAV_CMD_REQUEST_MESSAGE,
+                                mav.MAVLINK_MSG_ID_CAMERA_INFORMATION)
+    assert result == mav.MAV_RESULT_ACCEPTED
+    _wait(lambda: station.since(t0, "CAMERA_INFORMATION"))
+    first = station.since(t0, "CAMERA_INFORMATION")[0]
+    assert (first.resolution_h, first.resolution_v) == (0, 0)
+
     results: list = []
     sub = client.results(STREAM, callback=results.append)
     rig["publishing"].set()
     _wait(lambda: endpoint.cameras[0].last_frame is not None)
+    _wait(lambda: [i for i in station.since(t0, "CAMERA_INFORMATION")
+                   if (i.resolution_h, i.resolution_v) == (1280, 720)])
+    told = station.since(t0, "CAMERA_INFORMATION")
+    assert len(told) == 2, told  # once asked, once on the new size
 
     # capability discovery: a tracking camera with the stream's resolution
     t0 = time.monotonic()

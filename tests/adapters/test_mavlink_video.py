@@ -6,6 +6,7 @@ the real picture size read from the stream's keyframes."""
 
 from __future__ import annotations
 
+import math
 import os
 import threading
 import time
@@ -98,6 +99,12 @@ def test_a_station_plays_the_advertised_udp_stream(offline_client: Any, camera) 
         info = _info(station, mav.MAVLINK_MSG_ID_VIDEO_STREAM_INFORMATION, 0)
         assert (info.stream_id, info.count, info.type) == (1, 1, mav.VIDEO_STREAM_TYPE_RTPUDP)
         assert not info.flags & mav.VIDEO_STREAM_STATUS_FLAGS_RUNNING  # no frames yet
+        # NaN, as MAVSDK sends it, means all streams too; a stream the camera has not, denied
+        assert _info(station, mav.MAVLINK_MSG_ID_VIDEO_STREAM_INFORMATION, math.nan).uri == \
+            info.uri
+        result, texts = station.command(mav.MAV_CMD_REQUEST_MESSAGE,
+                                        mav.MAVLINK_MSG_ID_VIDEO_STREAM_INFORMATION, 2)
+        assert result == mav.MAV_RESULT_DENIED and "no video stream 2" in texts, texts
         listen = int(_uri(info))
         assert listen == video_port
         sdp = Path(f"/tmp/arcf-station-{os.getpid()}.sdp")

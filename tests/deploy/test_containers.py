@@ -65,8 +65,8 @@ def _engine_problem() -> str | None:
 
 
 _PROBLEM = _engine_problem()
-pytestmark = [pytest.mark.docker, pytest.mark.integration, pytest.mark.skipif(_PROBLEM is not None,
-                                                     reason=_PROBLEM or "")]
+pytestmark = [pytest.mark.docker, pytest.mark.integration, pytest.mark.heavy,
+              pytest.mark.skipif(_PROBLEM is not None, reason=_PROBLEM or "")]
 
 
 class Stack(ComposeStack):

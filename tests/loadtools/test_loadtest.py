@@ -11,7 +11,7 @@ from arcf.eval import load_dataset
 from arcf.loadtools.loadtest import markdown, run_load
 from arcf.loadtools.procs import ServiceProcess
 
-pytestmark = [pytest.mark.integration,
+pytestmark = [pytest.mark.integration, pytest.mark.heavy,
               pytest.mark.skipif(not (data_root() / "uav123_10fps").is_dir(),
                                  reason="needs ../shared/data")]
 

@@ -23,7 +23,7 @@ from arcf.loadtools.procs import ServiceProcess
 from arcf.loadtools.stress import run_overload, run_soak
 from arcf.service.settings import ServiceSettings
 
-pytestmark = [pytest.mark.integration,
+pytestmark = [pytest.mark.integration, pytest.mark.heavy,
               pytest.mark.skipif(not (data_root() / "uav123_10fps").is_dir(),
                                  reason="needs ../shared/data")]
 

@@ -21,7 +21,7 @@ from arcf.loadtools.netlab import unavailable
 
 WHY_NOT = unavailable()
 
-pytestmark = [pytest.mark.integration,
+pytestmark = [pytest.mark.integration, pytest.mark.heavy,
               pytest.mark.skipif(not (data_root() / "uav123_10fps").is_dir(),
                                  reason="needs ../shared/data"),
               pytest.mark.skipif(WHY_NOT is not None, reason=f"no network lab: {WHY_NOT}")]

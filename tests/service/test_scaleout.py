@@ -28,7 +28,7 @@ from arcf.loadtools.procs import RouterProcess, ServiceProcess, start_instances
 from arcf.loadtools.waiting import wait_until
 from arcf.service.cluster import owner
 
-pytestmark = [pytest.mark.integration,
+pytestmark = [pytest.mark.integration, pytest.mark.heavy,
               pytest.mark.skipif(not (data_root() / "uav123_10fps").is_dir(),
                                  reason="needs ../shared/data")]
 
