@@ -69,6 +69,19 @@ class GroundStation:
             time.sleep(0.01)
         raise AssertionError(f"no COMMAND_ACK for {command} within {timeout} s")
 
+    def request(self, message: int, *params: float, timeout: float = 30.0) -> Any:
+        """``MAV_CMD_REQUEST_MESSAGE`` for ``message`` (a message id; ``params`` after it):
+        the first such message received after the request, once it is accepted."""
+        from .waiting import wait_until
+
+        t0 = time.monotonic()
+        result, texts = self.command(mav.MAV_CMD_REQUEST_MESSAGE, message, *params)
+        if result != mav.MAV_RESULT_ACCEPTED:
+            raise AssertionError(f"request of message {message}: result {result} {texts}")
+        name = mav.mavlink_map[message].msgname
+        wait_until(lambda: self.since(t0, name), timeout=timeout, what=name)
+        return self.since(t0, name)[0]
+
     def close(self) -> None:
         self._stop.set()
         for t in self._threads:

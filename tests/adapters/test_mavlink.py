@@ -29,7 +29,6 @@ from arcf.adapters.mavlink import (
 )
 from arcf.client import TrackingClient
 from arcf.data import data_root
-from arcf.eval import load_dataset
 from arcf.loadtools.groundstation import GroundStation
 from arcf.loadtools.procs import ServiceProcess, free_port
 from arcf.loadtools.waiting import wait_until
@@ -176,14 +175,8 @@ def test_the_status_goes_out_as_soon_as_the_session_goes_stale_or_comes_back(
         endpoint.close()
 
 
-@pytest.fixture(scope="module")
-def sequence() -> Any:
-    (seq,) = load_dataset("uav123_10fps", sequences=["wakeboard7"])
-    return seq
-
-
 @pytest.fixture
-def rig(sequence: Any) -> Iterator[dict[str, Any]]:
+def rig(wakeboard7: Any) -> Iterator[dict[str, Any]]:
     """A service, a station publishing the sequence's JPEG frames at 10 fps (looped, seq
     increasing) while ``publishing`` is set, the MAVLink endpoint on a loopback UDP port and a
     MAVLink ground station."""
@@ -195,6 +188,7 @@ def rig(sequence: Any) -> Iterator[dict[str, Any]]:
                               [CameraConfig(STREAM, COMP)], link_timeout_s=1.0,
                               status_interval_s=1.0).start()
     station = GroundStation(port, COMP)
+    sequence = wakeboard7
     data = [p.read_bytes() for p in sequence.frames]
     publishing = threading.Event()
     stop = threading.Event()
@@ -248,11 +242,7 @@ def test_a_ground_station_tracks_through_the_mavlink_camera(rig: dict[str, Any])
     # the camera's information before its first frame: no size yet; once frames come, the
     # station hears the size without asking again
     t0 = time.monotonic()
-    result, _ = station.command(mav.MAV_CMD_REQUEST_MESSAGE,
-                                mav.MAVLINK_MSG_ID_CAMERA_INFORMATION)
-    assert result == mav.MAV_RESULT_ACCEPTED
-    _wait(lambda: station.since(t0, "CAMERA_INFORMATION"))
-    first = station.since(t0, "CAMERA_INFORMATION")[0]
+    first = station.request(mav.MAVLINK_MSG_ID_CAMERA_INFORMATION)
     assert (first.resolution_h, first.resolution_v) == (0, 0)
 
     results: list = []
@@ -265,12 +255,7 @@ def test_a_ground_station_tracks_through_the_mavlink_camera(rig: dict[str, Any])
     assert len(told) == 2, told  # once asked, once on the new size
 
     # capability discovery: a tracking camera with the stream's resolution
-    t0 = time.monotonic()
-    result, _ = station.command(mav.MAV_CMD_REQUEST_MESSAGE,
-                                mav.MAVLINK_MSG_ID_CAMERA_INFORMATION)
-    assert result == mav.MAV_RESULT_ACCEPTED
-    _wait(lambda: station.since(t0, "CAMERA_INFORMATION"))
-    info = station.since(t0, "CAMERA_INFORMATION")[0]
+    info = station.request(mav.MAVLINK_MSG_ID_CAMERA_INFORMATION)
     assert info.flags & mav.CAMERA_CAP_FLAGS_HAS_TRACKING_RECTANGLE
     assert info.flags & mav.CAMERA_CAP_FLAGS_HAS_TRACKING_POINT
     assert info.get_srcComponent() == COMP

@@ -67,15 +67,6 @@ def camera(wakeboard7):
     return wakeboard7, units, (images[0].shape[1], images[0].shape[0])
 
 
-def _info(station: GroundStation, message: int, *params: float) -> Any:
-    t0 = time.monotonic()
-    result, texts = station.command(mav.MAV_CMD_REQUEST_MESSAGE, message, *params)
-    assert result == mav.MAV_RESULT_ACCEPTED, texts
-    name = mav.mavlink_map[message].msgname
-    wait_until(lambda: station.since(t0, name), timeout=30, what=name)
-    return station.since(t0, name)[0]
-
-
 def _uri(info: Any) -> str:
     raw = info.uri if isinstance(info.uri, bytes) else str(info.uri).encode()
     return raw.rstrip(b"\0").decode()
@@ -94,13 +85,13 @@ def test_a_station_plays_the_advertised_udp_stream(offline_client: Any, camera) 
     station = GroundStation(port, COMP)
     try:
         wait_until(lambda: endpoint.link_up, timeout=30, what="the station heard")
-        camera_info = _info(station, mav.MAVLINK_MSG_ID_CAMERA_INFORMATION)
+        camera_info = station.request(mav.MAVLINK_MSG_ID_CAMERA_INFORMATION)
         assert camera_info.flags & mav.CAMERA_CAP_FLAGS_HAS_VIDEO_STREAM
-        info = _info(station, mav.MAVLINK_MSG_ID_VIDEO_STREAM_INFORMATION, 0)
+        info = station.request(mav.MAVLINK_MSG_ID_VIDEO_STREAM_INFORMATION, 0)
         assert (info.stream_id, info.count, info.type) == (1, 1, mav.VIDEO_STREAM_TYPE_RTPUDP)
         assert not info.flags & mav.VIDEO_STREAM_STATUS_FLAGS_RUNNING  # no frames yet
         # NaN, as MAVSDK sends it, means all streams too; a stream the camera has not, denied
-        assert _info(station, mav.MAVLINK_MSG_ID_VIDEO_STREAM_INFORMATION, math.nan).uri == \
+        assert station.request(mav.MAVLINK_MSG_ID_VIDEO_STREAM_INFORMATION, math.nan).uri == \
             info.uri
         result, texts = station.command(mav.MAV_CMD_REQUEST_MESSAGE,
                                         mav.MAVLINK_MSG_ID_VIDEO_STREAM_INFORMATION, 2)
@@ -172,19 +163,19 @@ def test_a_station_plays_the_advertised_rtsp_stream_and_tracks_on_it(service, ca
         try:
             wait_until(lambda: endpoint.link_up and endpoint.cameras[0].last_frame is not None,
                        timeout=60, what="the station heard and frames flowing")
-            info = _info(station, mav.MAVLINK_MSG_ID_VIDEO_STREAM_INFORMATION, 1)
+            info = station.request(mav.MAVLINK_MSG_ID_VIDEO_STREAM_INFORMATION, 1)
             assert info.type == mav.VIDEO_STREAM_TYPE_RTSP and _uri(info) == server.url
             assert info.flags & mav.VIDEO_STREAM_STATUS_FLAGS_RUNNING
             assert (info.resolution_h, info.resolution_v) == size
             assert info.encoding == mav.VIDEO_STREAM_ENCODING_H264
-            status = _info(station, mav.MAVLINK_MSG_ID_VIDEO_STREAM_STATUS, 0)
+            status = station.request(mav.MAVLINK_MSG_ID_VIDEO_STREAM_STATUS, 0)
             assert (status.resolution_h, status.resolution_v) == size
             with av.open(_uri(info), options={"rtsp_transport": "tcp"},
                          timeout=(20, 10)) as player:
                 shown = [(f.width, f.height) for f, _ in zip(player.decode(video=0),
                                                              range(3), strict=False)]
             assert shown == [size] * 3
-            camera_info = _info(station, mav.MAVLINK_MSG_ID_CAMERA_INFORMATION)
+            camera_info = station.request(mav.MAVLINK_MSG_ID_CAMERA_INFORMATION)
             assert (camera_info.resolution_h, camera_info.resolution_v) == size
             t0 = time.monotonic()
             _track_rectangle(station, seq.groundtruth[0], size)
@@ -239,7 +230,7 @@ def test_video_streams_are_cameras_with_their_real_size(video_rig, camera,
         assert cam.last_frame.width is None  # nothing declared: read from the keyframes
         wait_until(lambda: cam.video_size is not None and cam.video_size.read() is not None,
                    timeout=30, what="a keyframe with its parameter sets")
-        info = _info(station, mav.MAVLINK_MSG_ID_CAMERA_INFORMATION)
+        info = station.request(mav.MAVLINK_MSG_ID_CAMERA_INFORMATION)
         assert (info.resolution_h, info.resolution_v) == size
         assert not info.flags & mav.CAMERA_CAP_FLAGS_HAS_VIDEO_STREAM  # none configured
         t0 = time.monotonic()

@@ -27,7 +27,6 @@ from mavsdk.plugins.mavlink_direct import MavlinkDirect  # noqa: E402
 from arcf.adapters.mavlink import CameraConfig, MavlinkCameras, VideoStream  # noqa: E402
 from arcf.client import TrackingClient  # noqa: E402
 from arcf.data import data_root  # noqa: E402
-from arcf.eval import load_dataset  # noqa: E402
 from arcf.loadtools.procs import ServiceProcess, free_port  # noqa: E402
 from arcf.loadtools.waiting import wait_until  # noqa: E402
 
@@ -84,14 +83,8 @@ class Station:
         self.mavsdk.destroy()
 
 
-@pytest.fixture(scope="module")
-def sequence() -> Any:
-    (seq,) = load_dataset("uav123_10fps", sequences=["wakeboard7"])
-    return seq
-
-
 @pytest.fixture
-def rig(sequence: Any) -> Iterator[dict[str, Any]]:
+def rig(wakeboard7: Any) -> Iterator[dict[str, Any]]:
     """A service, the sequence's JPEG frames published at 10 fps (looped, bounded), the
     MAVLink camera advertising an RTSP stream, and MAVSDK linked to it once frames flow."""
     service = ServiceProcess(workers=1)
@@ -101,7 +94,7 @@ def rig(sequence: Any) -> Iterator[dict[str, Any]]:
     endpoint = MavlinkCameras(endpoint_client, f"udpin:127.0.0.1:{port}",
                               [CameraConfig(STREAM, COMP, VideoStream.parse(URI))],
                               status_interval_s=0.2).start()
-    data = [p.read_bytes() for p in sequence.frames]
+    data = [p.read_bytes() for p in wakeboard7.frames]
     stop = threading.Event()
     results: list[Any] = []
     watch = publisher.results(STREAM, callback=results.append)
@@ -120,7 +113,7 @@ def rig(sequence: Any) -> Iterator[dict[str, Any]]:
                    what="the camera's first frame")
         station = Station(port)
         yield {"station": station, "endpoint": endpoint, "results": results,
-               "gt": np.asarray(sequence.groundtruth), "n": len(data)}
+               "gt": np.asarray(wakeboard7.groundtruth), "n": len(data)}
     finally:
         stop.set()
         thread.join(timeout=5)
