@@ -399,11 +399,16 @@ class MavlinkCameras:
                 if result.session_id != cam.session_id:
                     return  # another station's session on the same stream
                 stopped = result.status == ResultStatus.STOPPED
-                if stopped:
+                # interrupted, not ended (its instance stopped): kept, shown paused, until it
+                # resumes there or elsewhere under the same id
+                interrupted = stopped and result.code == ErrorCode.INTERRUPTED
+                if stopped and not interrupted:
                     cam.session_id, cam.result = None, None
                     cam.mode = mav.CAMERA_TRACKING_MODE_NONE
                     if result.code is not None:
                         self._statustext(cam, f"tracking ended: {result.code.value}")
+                elif interrupted:
+                    cam.result = result
                 else:
                     cam.result, cam.heard_at = result, time.monotonic()
                 frame = cam.last_frame
@@ -411,20 +416,25 @@ class MavlinkCameras:
                 size = ((frame.width, frame.height) if frame is not None and frame.width
                         and frame.height else self._sizes.get(cam.config.stream_id))
                 cam.follower.on_result(result, size, self.follow_clock())
-            if not stopped:
-                # a stale notice (or the first result after one): the station hears it now
+            if not stopped or interrupted:
+                # a stale notice, an interruption, or the first result after one: the
+                # station hears it now
                 self._announce(cam, time.monotonic())
         return seen
 
     def stale(self, cam: _Camera, now: float) -> str | None:
         """Why ``cam``'s session has no current box (None: it has one, or no session): the
-        service said its stream stopped, or no result came for ``stale_after_s``."""
+        service said its stream stopped, or that it interrupted the session (its instance
+        stopped), or no result came for ``stale_after_s``."""
         with self._state_lock:
             session, result, heard_at = cam.session_id, cam.result, cam.heard_at
         if session is None:
             return None
         if result is not None and result.status == ResultStatus.STALE:
             return "no frames" if not result.message else result.message
+        if result is not None and result.status == ResultStatus.STOPPED:  # interrupted
+            return ("the tracking service stopped (a restart or a fail-over); the track "
+                    "resumes when it is back")
         if self.stale_after_s and now - heard_at > self.stale_after_s:
             return f"no result from the tracking service for {now - heard_at:.1f} s"
         return None

@@ -158,6 +158,11 @@ class ErrorCode(str, Enum):
     #: ``quarantine_after`` times: its sessions end, and starts on it are refused for
     #: ``quarantine_s``.
     QUARANTINED = "quarantined"
+    #: Not a refusal: the code of the ``stopped`` result of a session interrupted, not
+    #: ended: its instance is shutting down or lost its place in the cluster, and the session
+    #: stays registered. It resumes (status ``resumed``) on a live instance, or on this one
+    #: when it starts again with its state file.
+    INTERRUPTED = "interrupted"
     INTERNAL = "internal"
 
 

@@ -53,6 +53,7 @@ class Service:
         from .cluster import Cluster
         from .control import ControlPlane
         from .links import RouterLinks
+        from .statefile import StateFile
         from .untracked import UntrackedNotices
         from .worker import worker_main
 
@@ -83,7 +84,8 @@ class Service:
         self.cluster = Cluster(
             self.session, self.keys, s.instance_id,
             # a client reaches the others only through a router; a router or a peer may not
-            linked=(lambda: any(session.info.routers_zid())) if s.mode == "client" else None)
+            linked=(lambda: any(session.info.routers_zid())) if s.mode == "client" else None,
+            state=StateFile(s.state_file) if s.state_file is not None else None)
         self.control = ControlPlane(s, self.queues, __version__, responses=self.responses,
                                     cluster=self.cluster)
         self.cluster.on_change = self.control.rebalance

@@ -18,7 +18,8 @@ Zenoh is the fabric; nothing here is a broker. Three Zenoh mechanisms carry it:
   with the frames they track (it followed every result before). When an owner dies, the new
   owner resumes its sessions from the last box it heard of on the next frame.
   A joining instance asks the others for their registry (a query on ``<prefix>/registry/*``)
-  before it announces itself.
+  before it announces itself. With a state file (``service/statefile.py``) the registry is
+  also kept on disk, and a restarted instance resumes what it ran.
 """
 
 from __future__ import annotations
@@ -41,6 +42,8 @@ from arcf.schemas import (
     decode,
     encode,
 )
+
+from .statefile import SAVE_PERIOD_S, StateFile
 
 log = logging.getLogger(__name__)
 
@@ -81,8 +84,15 @@ class Cluster:
 
     def __init__(self, session: Any, keys: KeySpace, instance_id: str,
                  on_change: Callable[[], None] | None = None,
-                 linked: Callable[[], bool] | None = None) -> None:
+                 linked: Callable[[], bool] | None = None,
+                 state: StateFile | None = None) -> None:
         self.session = session
+        #: the registry on disk (None: none): merged at start, written as it changes
+        self.state = state
+        #: bumped by every change of the registry or of a last box; what the file has
+        self._version = 0
+        self._saved = 0
+        self._save_lock = threading.Lock()  # the saver thread's write and close()'s
         #: whether the instance is linked to a router now (None: it is one). An instance cut
         #: off from its router sees every other instance's token vanish at once, and Zenoh
         #: links it to another router of its list milliseconds later, the tokens coming back:
@@ -115,6 +125,8 @@ class Cluster:
         self._queryable: Any = None
         self._thread = threading.Thread(target=self._notify_loop, name="arcf-cluster",
                                         daemon=True)
+        self._saver = threading.Thread(target=self._save_loop, name="arcf-state-file",
+                                       daemon=True)
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
@@ -128,6 +140,12 @@ class Cluster:
                                                           self._on_last_boxes))
         self._queryable = self.session.declare_queryable(self.keys.registry_all(),
                                                          self._on_registry_query)
+        if self.state is not None:
+            resumed = self.state.load()
+            for spec in resumed:
+                self._merge_spec(spec)
+            log.info("%d session(s) from %s", len(resumed), self.state.path)
+            self._saver.start()
         self._fetch_registry()
         self._subs.append(self.session.liveliness().declare_subscriber(
             self.keys.all_instances(), self._on_member, history=True))
@@ -144,6 +162,8 @@ class Cluster:
     def close(self) -> None:
         self._closing = True
         self._changed.set()
+        if self.state is not None:
+            self._save()  # what runs now resumes when this instance starts again
         if self._token is not None:
             self._token.undeclare()
         for sub in self._subs:
@@ -208,6 +228,7 @@ class Cluster:
         with self.lock:
             self.specs.pop(session_id, None)
             self.last.pop(session_id, None)
+            self._version += 1
         self.session.delete(self.keys.registry(session_id))
 
     # ------------------------------------------------------------------ Zenoh callbacks
@@ -234,6 +255,7 @@ class Cluster:
             with self.lock:
                 self.specs.pop(sid, None)
                 self.last.pop(sid, None)
+                self._version += 1
         else:
             self._merge(sample.payload.to_bytes())
         self._changed.set()
@@ -244,6 +266,9 @@ class Cluster:
         except SchemaError as exc:
             log.warning("ignoring a malformed registry entry: %s", exc)
             return
+        self._merge_spec(spec)
+
+    def _merge_spec(self, spec: SessionSpec) -> None:
         with self.lock:
             self._registered(spec)
             if spec.last_seq is not None and spec.last_box is not None:
@@ -251,12 +276,33 @@ class Cluster:
 
     def _on_registry_query(self, query: Any) -> None:
         """A joining instance asks what runs: every known session, with its last box."""
+        for spec in self._entries():
+            query.reply(self.keys.registry(spec.session_id), encode(spec))
+
+    def _entries(self) -> list[SessionSpec]:
+        """Every known session, with its last usable box."""
         with self.lock:
             entries = [(s, self.last.get(s.session_id)) for s in self.specs.values()]
-        for spec, last in entries:
-            if last is not None and usable_box(last[1]):
-                spec = spec.model_copy(update={"last_seq": last[0], "last_box": last[1]})
-            query.reply(self.keys.registry(spec.session_id), encode(spec))
+        return [spec.model_copy(update={"last_seq": last[0], "last_box": last[1]})
+                if last is not None and usable_box(last[1]) else spec
+                for spec, last in entries]
+
+    def _save(self) -> None:
+        assert self.state is not None
+        with self._save_lock:
+            with self.lock:
+                version = self._version
+            try:
+                self.state.save(self._entries())
+                self._saved = version
+            except OSError as exc:  # a full disk must not stop the service; said, retried
+                log.error("state file %s not written: %s", self.state.path, exc)
+
+    def _save_loop(self) -> None:
+        while not self._closing:
+            time.sleep(SAVE_PERIOD_S)
+            if self._version != self._saved and not self._closing:
+                self._save()
 
     def _on_last_boxes(self, sample: Any) -> None:
         try:
@@ -287,10 +333,12 @@ class Cluster:
         known = self.last.get(session_id)
         if known is None or known[0] < last[0]:
             self.last[session_id] = last
+            self._version += 1
 
     def _registered(self, spec: SessionSpec) -> None:
         """``spec`` is known now: a box that came before it counts (call with ``lock``)."""
         self.specs[spec.session_id] = spec
+        self._version += 1
         early = self.early.pop(spec.session_id, None)
         if early is not None:
             self._keep(spec.session_id, early)

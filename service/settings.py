@@ -135,6 +135,13 @@ class ServiceSettings:
         "counted in arcf_sessions_shed_total). Among equals nothing is shed: each stream "
         "keeps its newest frames and drops the rest (counted); a stream alone on its worker "
         "may use all of it. 0: off"))
+    state_file: Path | None = field(default=None, metadata=_about(
+        "keep the session registry, each session with its last box, in this file (written "
+        "at most every 0.5 s while it changes, and at exit); started again with the same "
+        "file, the instance resumes those sessions from their last box (status resumed), "
+        "after a SIGTERM as after a SIGKILL. Without it a lone instance that restarts "
+        "starts empty (a fleet's other instances take its sessions over either way)",
+        kind=Path))
     last_box_period_ms: int = field(default=200, metadata=_about(
         "each worker puts the last box of its sessions on <prefix>/boxes/<instance>/<worker> "
         "at most this often (when one changed): the box another instance resumes a session "

@@ -157,10 +157,11 @@ class Worker:
         self.responses.put(Fenced(self.index, dropped))
 
     def _final_statuses(self, reason: str) -> None:
-        """One last result per session, status ``stopped``: a ground station learns that its
-        session ended, and why, instead of watching results stop."""
+        """One last result per session, status ``stopped``, code ``interrupted`` (the session
+        stays registered and resumes elsewhere, or here after a restart): a ground station
+        learns why its results pause instead of watching them stop."""
         for s in self.table:
-            self._publish_stopped(s, reason, None)
+            self._publish_stopped(s, reason, ErrorCode.INTERRUPTED)
 
     def _publish_stopped(self, s: Session, reason: str, code: ErrorCode | None) -> None:
         self._publish_notice(s, "stopped", reason, code)
@@ -273,7 +274,9 @@ class Worker:
                 except Exception:
                     log.exception("worker %d: error while draining %s", self.index,
                                   stream.stream_id)
-        self._final_statuses("the service is shutting down")
+        self._final_statuses("the service is shutting down; the session resumes on another "
+                             "instance if one is live, or here when the service starts again "
+                             "with its state file")
 
     def _pump_commands(self) -> None:
         """Move commands from the control plane's queue into the loop's wake-up."""
