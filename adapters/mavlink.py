@@ -852,9 +852,12 @@ class MavlinkCameras:
                     log.info("mavlink: stop of %s: %s", session, exc)  # it ended already
             return mav.MAV_RESULT_ACCEPTED, None
         with self._state_lock:
-            frame, video = cam.last_frame, cam.video_size
+            frame, video, frame_at = cam.last_frame, cam.video_size, cam.frame_at
         if frame is None:
             return mav.MAV_RESULT_DENIED, "no frames yet on this stream"
+        if not self._video_running(cam):  # the box would land on a picture long gone
+            return (mav.MAV_RESULT_DENIED, f"the camera's stream is not delivering: no frame "
+                    f"for {time.monotonic() - frame_at:.0f} s")
         try:
             size = frame_size(frame, self.max_pixels, video)
         except ValueError as exc:

@@ -393,6 +393,11 @@ def test_a_stream_that_stops_leaves_active_until_its_frames_resume(rig: dict[str
     assert all(_no_box(s) for s in statuses(t1))  # never ACTIVE, no box to follow
     assert endpoint.counts["stale"] == 1
     assert any("tracking stale" in m.text for m in station.since(t0, "STATUSTEXT"))
+    # a box drawn now would land on a picture long gone: refused, saying why
+    _wait(lambda: not endpoint._video_running(endpoint.cameras[0]))
+    result, texts = station.command(mav.MAV_CMD_CAMERA_TRACK_RECTANGLE, 0.4, 0.4, 0.6, 0.6)
+    assert result == mav.MAV_RESULT_DENIED and any("not delivering" in t for t in texts)
+    assert endpoint.cameras[0].session_id == session  # the session waits for its frames
 
     rig["publishing"].set()  # frames again: results about them, then a box again
     _wait(lambda: [r for r in mine("tracking") if r.frame_seq > notice.frame_seq], timeout=30)

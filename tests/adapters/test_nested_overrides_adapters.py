@@ -52,6 +52,17 @@ def _wait(predicate: Any, timeout: float = 30.0, what: str = "condition") -> Non
     wait_until(predicate, timeout=timeout, what=what)
 
 
+def _publisher(node: Any, key: str) -> Any:
+    """A publisher on ``key`` once a subscriber (the bridge's) is known to it: a put before
+    the bridge's subscription reached the router would go nowhere. Blocking, so that the
+    station's own queue drops nothing."""
+    import zenoh
+
+    pub = node.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK)
+    _wait(lambda: pub.matching_status.matching, what=f"a subscriber of {key}")
+    return pub
+
+
 def _close(*opened: Any) -> None:
     """Close what a test opened, in order, passing over what it never got to open (None)."""
     for part in opened:
@@ -260,14 +271,14 @@ def test_a_ros2_bridge_with_dotted_overrides_reacquires(
     results: list[Result] = []
     try:
         sub = client.results(stream, callback=results.append)
-        node.put(topic_key(0, f"/arcf/{stream}/track", rt.DETECTION_2D),
-                 _track_request(reacquire_scenario.init_box))
+        _publisher(node, topic_key(0, f"/arcf/{stream}/track", rt.DETECTION_2D)).put(
+            _track_request(reacquire_scenario.init_box))
         _wait(lambda: bridge.counts["starts"] + bridge.counts["refused"] >= 1,
               what="the bridge to start a session")
         assert (bridge.counts["starts"], bridge.counts["refused"]) == (1, 0)
-        image_key = topic_key(0, IMAGE_TOPIC, rt.COMPRESSED_IMAGE)
+        images = _publisher(node, topic_key(0, IMAGE_TOPIC, rt.COMPRESSED_IMAGE))
         reacquire_scenario.replay(
-            lambda k, jpeg: node.put(image_key, _image(k, jpeg)),
+            lambda k, jpeg: images.put(_image(k, jpeg)),
             lambda k: any(r.frame_seq == k and r.track_state is not None
                           for r in list(results)))
         sub.close()
@@ -293,8 +304,8 @@ def test_a_ros2_bridge_with_a_bad_dotted_override_logs_the_refusal(
     node = open_session("client", connect=[service.endpoint])
     try:
         with caplog.at_level(logging.WARNING, logger="arcf.adapters.ros2"):
-            node.put(topic_key(0, f"/arcf/{stream}/track", rt.DETECTION_2D),
-                     _track_request(reacquire_scenario.init_box))
+            _publisher(node, topic_key(0, f"/arcf/{stream}/track", rt.DETECTION_2D)).put(
+                _track_request(reacquire_scenario.init_box))
             _wait(lambda: bridge.counts["refused"] == 1, what="the refusal")
         assert bridge.counts["starts"] == 0
         assert any("invalid_parameter" in r.getMessage()
