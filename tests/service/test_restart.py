@@ -27,7 +27,7 @@ from arcf.loadtools.waiting import wait_until
 from arcf.schemas import ErrorCode, Result, ResultStatus, SessionSpec, from_json
 
 mav = mavutil.mavlink
-pytestmark = pytest.mark.integration
+pytestmark = [pytest.mark.integration, pytest.mark.heavy]
 STREAM, COMP, W, H = "cam1", 100, 1280, 720
 
 
