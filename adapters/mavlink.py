@@ -160,6 +160,9 @@ class _Camera:
     heard_at: float = 0.0
     #: what the station was last told: stale (True) or not
     stale: bool = False
+    #: what the station was last told makes the status ERROR besides staleness: an error
+    #: result's reason, a lost target (None: nothing)
+    trouble: str | None = None
     #: the picture size the last CAMERA_INFORMATION carried (None: none sent yet)
     told_size: tuple[int, int] | None = None
 
@@ -405,12 +408,14 @@ class MavlinkCameras:
                 if stopped and not interrupted:
                     cam.session_id, cam.result = None, None
                     cam.mode = mav.CAMERA_TRACKING_MODE_NONE
-                    if result.code is not None:
-                        self._statustext(cam, f"tracking ended: {result.code.value}")
+                    if result.code is not None:  # the service ended it (a stop says nothing)
+                        self._statustext(cam, f"tracking ended ({result.code.value}): "
+                                              f"{result.message or 'no reason given'}")
                 elif interrupted:
                     cam.result = result
                 else:
                     cam.result, cam.heard_at = result, time.monotonic()
+                    self._tell_trouble(cam, result)
                 frame = cam.last_frame
             if cam.follower is not None:  # the gimbal follows a box, or is let go
                 size = ((frame.width, frame.height) if frame is not None and frame.width
@@ -421,6 +426,28 @@ class MavlinkCameras:
                 # station hears it now
                 self._announce(cam, time.monotonic())
         return seen
+
+    def _tell_trouble(self, cam: _Camera, result: Result) -> None:
+        """A result that makes the status ERROR for a reason of its frame (an error result:
+        a picture that could not be decoded, a video waiting for its keyframe, a box that
+        does not fit; a lost target) is told in a STATUSTEXT once, when it starts, and its
+        end once; a stale session is told by :meth:`_announce`. Call with the state lock."""
+        if result.status == ResultStatus.ERROR:
+            trouble: str | None = f"tracking error: {result.message or result.code or '?'}"
+        elif result.track_state == TrackState.LOST:
+            trouble = "target lost"
+        elif result.status == ResultStatus.STALE:
+            return  # told as stale
+        else:
+            trouble = None
+        if trouble == cam.trouble:
+            return
+        if trouble is not None:
+            self._statustext(cam, trouble)
+        elif cam.trouble is not None:
+            self._statustext(cam, "target tracked again" if cam.trouble.startswith("target")
+                             else "tracking again", mav.MAV_SEVERITY_INFO)
+        cam.trouble = trouble
 
     def stale(self, cam: _Camera, now: float) -> str | None:
         """Why ``cam``'s session has no current box (None: it has one, or no session): the

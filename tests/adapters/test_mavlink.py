@@ -118,6 +118,43 @@ def test_a_stale_session_is_never_active_whoever_says_so(offline_client: Any) ->
                        [CameraConfig(STREAM, COMP)], stale_after_s=float("nan"))
 
 
+def test_every_error_says_why_once(monkeypatch: pytest.MonkeyPatch,
+                                   offline_client: Any) -> None:
+    """An error result (a picture not decoded, a video waiting for its keyframe) and a lost
+    target make the status ERROR: each is told in a STATUSTEXT when it starts, once, and
+    its end once; an ended session says why it ended."""
+    client = offline_client
+    endpoint = MavlinkCameras(client, f"udpin:127.0.0.1:{free_port()}",  # type: ignore[arg-type]
+                              [CameraConfig(STREAM, COMP)], status_interval_s=60.0)
+    sent: list[Any] = []
+    monkeypatch.setattr(endpoint, "_send", lambda cam, m: sent.append(m)
+                        if m.get_type() == "STATUSTEXT" else None)
+    try:
+        (cam,) = endpoint.cameras
+        cam.session_id, cam.mode = "s1", mav.CAMERA_TRACKING_MODE_RECTANGLE
+        seen = client.callbacks["results"]
+        waiting = "decode_error: no keyframe yet"
+        for seq in (1, 2):
+            seen(_result("error", seq, code="decode_error", message=waiting))
+        seen(_result("tracking", 3, track_state="tracking", confidence=0.9))
+        for seq in (4, 5):
+            seen(_result("tracking", seq, track_state="lost", confidence=0.1))
+        seen(_result("tracking", 6, track_state="coasting", confidence=0.4))
+        seen(_result("stopped", 6, code="session_expired", message="no frame for 30 s"))
+        texts: list[str] = []  # chunks of one text (MAVLink 2: the same id) joined
+        for i, m in enumerate(sent):
+            if m.id and i and sent[i - 1].id == m.id:
+                texts[-1] += m.text
+            else:
+                texts.append(m.text)
+        assert texts == [f"tracking error: {waiting}", "tracking again", "target lost",
+                         "target tracked again",
+                         "tracking ended (session_expired): no frame for 30 s"]
+        assert cam.session_id is None
+    finally:
+        endpoint.close()
+
+
 def test_the_status_goes_out_as_soon_as_the_session_goes_stale_or_comes_back(
         monkeypatch: pytest.MonkeyPatch, offline_client: Any) -> None:
     """A change between stale and not stale sends its STATUSTEXT and the status at once,
