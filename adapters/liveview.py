@@ -252,7 +252,7 @@ class Watch:
         event = json.dumps({
             "session_id": result.session_id, "frame_seq": result.frame_seq,
             "status": result.status.value, "box": _finite(result.box),
-            "message": result.message,
+            "message": result.message, "code": result.code.value if result.code else None,
             "state": result.track_state.value if result.track_state else None,
             "confidence": result.confidence, "aberrance": _finite([result.aberrance])[0],
             "colour": "#" + bytes(colour_bgr(self._colours[result.session_id])[::-1]).hex()})

@@ -55,6 +55,15 @@ async function refreshStreams() {
 
 function fmt(v, digits) { return v === null || v === undefined ? "–" : v.toFixed(digits); }
 
+// what a row says: the track state, or why the session has no current box (the reason in
+// full as the row's title)
+function stateText(r) {
+  if (r.status === "stale") return "stale: no frames";
+  if (r.status === "error") return "error: " + (r.code || "?");
+  if (r.status === "stopped") return "interrupted: the service stopped";
+  return r.state || r.status;
+}
+
 function renderTable() {
   const body = document.querySelector("#sessions tbody");
   body.replaceChildren();
@@ -67,7 +76,7 @@ function renderTable() {
     const stale = r.status === "stale";
     const classes = [stale ? "stale" : "", id === control.selected ? "selected" : ""].join(" ");
     const row = el("tr", undefined, { class: classes.trim(), "data-session": id,
-      title: stale ? (r.message || "") : "" });
+      title: r.message || "" });
     const actions = el("td");
     if (control.on && control.token) {
       const pick = el("button", id === control.selected ? "selected" : "re-draw", { type: "button", class: "select" });
@@ -77,7 +86,7 @@ function renderTable() {
       actions.append(pick, " ", stop);
     }
     row.append(name, el("td", presets.get(id) || "–"),
-      el("td", stale ? "stale: no frames" : (r.state || r.status)),
+      el("td", stateText(r)),
       el("td", fmt(r.confidence, 2)), el("td", fmt(r.aberrance, 4)), el("td", String(r.frame_seq)),
       actions);
     body.append(row);
@@ -249,7 +258,8 @@ function watch() {
       s.points.push({ seq: r.frame_seq, confidence: r.confidence, aberrance: r.aberrance });
       if (s.points.length > HISTORY) s.points.shift();
     }
-    if (r.status === "stopped") sessions.delete(r.session_id);
+    // ended; but an interrupted session (its instance stopped) resumes under its id
+    if (r.status === "stopped" && r.code !== "interrupted") sessions.delete(r.session_id);
     lastSeq = lastSeq === null ? r.frame_seq : Math.max(lastSeq, r.frame_seq);
     document.getElementById("frame-seq").textContent = String(lastSeq);
   };

@@ -202,6 +202,11 @@ def test_a_stream_that_stops_shows_its_session_stale_until_frames_resume(frames)
                     f"document.querySelector('{state}').textContent == 'stale: no frames'",
                     timeout=30_000)
                 assert page.get_attribute("#sessions tbody tr", "class") == "stale"
+                # the reason in full, as the service gave it
+                page.wait_for_function(
+                    "document.querySelector('#sessions tbody tr').title.length > 0",
+                    timeout=30_000)
+                assert "not current" in page.get_attribute("#sessions tbody tr", "title")
                 watch = view.watches["drone-8"]
                 wait_until(lambda: watch.drawn and watch.drawn[0].status.value == "stale", 30,
                            f"the picture drawn again (view {view.counts}, {watch.viewers} "
