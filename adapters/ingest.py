@@ -198,13 +198,14 @@ class Ingest:
     ``realtime``: a file plays at its own frame rate (a live source always comes at its own).
     ``read_timeout_s``: a live source with nothing to read for this long is closed and
     opened again. ``retry_s`` / ``retry_max_s``: the wait before reopening a source that
-    failed, doubled at each failure in a row up to the maximum.
+    failed, doubled at each failure in a row up to the maximum (1 s: a camera that comes
+    back is read again within a second; an attempt costs a connection or a socket bind).
     """
 
     def __init__(self, client: TrackingClient, source: Source, stream_id: str, *,
                  realtime: bool = True, loop: bool = False, jpeg_quality: int = 90,
                  open_timeout_s: float = 10.0, read_timeout_s: float = 3.0,
-                 retry_s: float = 0.5, retry_max_s: float = 5.0) -> None:
+                 retry_s: float = 0.25, retry_max_s: float = 1.0) -> None:
         if not 1 <= jpeg_quality <= 100:
             raise ValueError(f"jpeg_quality must be within 1..100, got {jpeg_quality}")
         self.client = client
