@@ -219,6 +219,11 @@ class FramePipeline:
             for s in stream.sessions.values():  # their ``dropped`` counts from here
                 if s.last_seq is not None:
                     s.last_seq = seq - 1
+                # a box drawn on a frame of the old numbering (a camera that restarted since
+                # the pilot drew it) would wait for that number for good: it applies here
+                if s.pending_box is not None and s.pending_seq is not None \
+                        and s.pending_seq > seq:
+                    s.pending_seq = seq
         self.metrics.FRAMES_DROPPED.inc(lost)
         return True
 

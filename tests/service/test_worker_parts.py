@@ -230,6 +230,25 @@ def test_refused_frames_are_counted_and_told(pipeline: FramePipeline) -> None:
                     (ErrorCode.IMAGE_TOO_LARGE, 6)]
 
 
+def test_a_box_drawn_before_a_camera_restart_applies_after_it(pipeline: FramePipeline) -> None:
+    """A station draws a box on frame 5000 as its camera restarts and numbers from 0: once
+    the stream follows the new numbering (resync_frames frames in a row), the waiting box
+    applies to the first frame of it, instead of waiting for frame 5000 for good."""
+    stream = _real_stream()
+    jpeg = encode_image(np.zeros((16, 16, 3), np.uint8), "jpeg")
+    assert pipeline.take(stream, _frame("cam", 4999, jpeg), 0) is not None
+    waiting = Session("w", "cam", "arcf-h", None, None, pending_box=(1.0, 1.0, 4.0, 4.0),
+                      pending_seq=5000)
+    later = Session("l", "cam", "arcf-h", None, None, pending_box=(1.0, 1.0, 4.0, 4.0),
+                    pending_seq=1)  # drawn on the new feed's frame 1: still waits for it
+    stream.sessions.update(w=waiting, l=later)
+    taken = [pipeline.take(stream, _frame("cam", seq, jpeg), 0) for seq in range(3)]
+    assert [p is not None for p in taken] == [False, False, True]  # followed at the 3rd
+    assert [(e.code, e.frame_seq) for e in stream.errors.sent][-1] == (
+        ErrorCode.SEQUENCE_RESTARTED, 2)
+    assert (waiting.pending_seq, later.pending_seq) == (2, 1)
+
+
 def test_video_units_go_through_the_streams_decoder(pipeline: FramePipeline,
                                                     wakeboard7) -> None:  # type: ignore[no-untyped-def]
     from arcf.loadtools.video import encode_video
