@@ -14,7 +14,6 @@ the station sent while the service was away or starting, which no result answere
 
 from __future__ import annotations
 
-import os
 import signal
 import subprocess
 import sys
@@ -28,7 +27,7 @@ from _common import parser, spread, write_trials  # beside this script
 
 from arcf.client import TrackingClient
 from arcf.eval import load_dataset
-from arcf.loadtools.procs import ServiceProcess, free_port, worker_pids
+from arcf.loadtools.procs import ServiceProcess, free_port
 from arcf.loadtools.system import machine
 from arcf.loadtools.waiting import wait_until
 
@@ -67,12 +66,7 @@ def trial(sequence: Any, how: str, preset: str, fps: float, warm_s: float,
         if how == "term":
             service.stop()
         else:
-            workers = worker_pids(service.pid)
-            os.kill(service.pid, signal.SIGKILL)
-            service.proc.wait(timeout=30)
-            wait_until(lambda: not any(Path(f"/proc/{p}").exists() for p in workers),
-                       timeout=60, what="the workers gone")
-            service.stop()
+            service.kill()
         t_down = time.monotonic()
         time.sleep(down_s)
         t_start = time.monotonic()

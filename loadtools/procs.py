@@ -146,6 +146,18 @@ class ServiceProcess(Program):
                          quiet=quiet, env=env, prefix=prefix)
         self.workers = worker_pids(self.proc.pid)
 
+    def kill(self, timeout: float = 60.0) -> None:
+        """SIGKILL the instance's main process, as a crash would, and wait until it and its
+        workers (which notice their parent is gone) have exited."""
+        from .waiting import wait_until
+
+        workers = worker_pids(self.pid)
+        self.proc.kill()
+        self.proc.wait(timeout=timeout)
+        wait_until(lambda: not any(Path(f"/proc/{p}").exists() for p in workers),
+                   timeout=timeout, what="the killed instance's workers gone")
+        self.stop()
+
     def metric(self, name: str) -> float:
         """Sum of every series of a metric (all label values), scraped over HTTP."""
         return scrape(self.metrics_url).get(name, 0.0)

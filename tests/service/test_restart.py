@@ -22,7 +22,7 @@ pytest.importorskip("zenoh")
 from arcf.adapters.mavlink import CameraConfig, MavlinkCameras
 from arcf.client import TrackingClient
 from arcf.loadtools.groundstation import GroundStation
-from arcf.loadtools.procs import ServiceProcess, free_port, worker_pids
+from arcf.loadtools.procs import ServiceProcess, free_port
 from arcf.loadtools.waiting import wait_until
 from arcf.schemas import ErrorCode, Result, ResultStatus, SessionSpec, from_json
 
@@ -94,12 +94,7 @@ def test_a_restarted_instance_resumes_the_pilots_track(tmp_path: Path, wakeboard
             (last,) = mine("stopped")
             assert last.code == ErrorCode.INTERRUPTED, last
         else:
-            workers = worker_pids(service.pid)
-            os.kill(service.pid, signal.SIGKILL)
-            service.proc.wait(timeout=30)
-            wait_until(lambda: not any(Path(f"/proc/{p}").exists() for p in workers),
-                       timeout=60, what="the killed instance's workers gone")
-            service.stop()
+            service.kill()
         assert _registered(state) == [session]  # kept for the restart
 
         # while the service is away: ERROR, with the reason; never IDLE
