@@ -86,6 +86,9 @@ def main(argv: list[str] | None = None) -> int:
             (stream,) = fleet.add(names=[name], frames=len(clip))
             print(f"session {stream.sessions[0]} on stream {stream.name}: "
                   f"{stream.acks[0].message}", flush=True)
+            print("each result: frame, status, box (x, y, w, h: 1-based pixels), track state, "
+                  "confidence, PSR, aberrance, frames dropped before it, and the box centre's "
+                  "distance to the ground truth's", flush=True)
             fleet.wait_published(timeout=len(clip) * 10.0)
             fleet.settle(timeout=10)
             fleet.close()

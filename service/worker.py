@@ -90,7 +90,9 @@ class Worker:
         self.keys = KeySpace(settings.prefix)
         self.zenoh = zenoh
         # before the liveliness token: "ready" means no first-frame import or compile stall
-        log.debug("tracker kernels ready in %.2f s", warm_up())
+        log.info("worker %d: preparing the trackers' compiled kernels (the first start on "
+                 "a machine compiles them, about a minute; later starts load them)", index)
+        log.info("worker %d: kernels ready in %.1f s", index, warm_up())
         if not REGION_DECODING:
             log.warning("JPEG frames are decoded whole: the _jpegregion module was not built "
                         "(it needs a C compiler and libjpeg-turbo's headers at install)")

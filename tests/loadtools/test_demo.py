@@ -46,6 +46,7 @@ def test_the_demo_starts_its_service_and_replays_a_sequence(capsys) -> None:
     assert f"starting arcf-service on tcp/127.0.0.1:{port}" in out
     default_stream = "-".join(("uav123_10fps", "wakeboard7"))  # <dataset>-<sequence>
     assert f"on stream {default_stream}:" in out
+    assert "each result: frame, status, box" in out  # what the columns are
     _accounted(out)
 
 
