@@ -449,12 +449,22 @@ class MavlinkCameras:
                              else "tracking again", mav.MAV_SEVERITY_INFO)
         cam.trouble = trouble
 
+    def _linked(self) -> bool | None:
+        """Whether the service client has any Zenoh link (a router or a peer); None when it
+        cannot tell (a stand-in client)."""
+        try:
+            info = self.client.session.info
+            return any(info.routers_zid()) or any(info.peers_zid())
+        except AttributeError:
+            return None
+
     def stale(self, cam: _Camera, now: float) -> str | None:
         """Why ``cam``'s session has no current box (None: it has one, or no session): the
         service said its stream stopped, or that it interrupted the session (its instance
         stopped), or no result came for ``stale_after_s``."""
         with self._state_lock:
             session, result, heard_at = cam.session_id, cam.result, cam.heard_at
+            frame_at = cam.frame_at
         if session is None:
             return None
         if result is not None and result.status == ResultStatus.STALE:
@@ -463,6 +473,12 @@ class MavlinkCameras:
             return ("the tracking service stopped (a restart or a fail-over); the track "
                     "resumes when it is back")
         if self.stale_after_s and now - heard_at > self.stale_after_s:
+            # whose silence: frames reach this camera through the service's Zenoh network
+            if self._linked() is False:
+                return (f"no link to the tracking service's network for "
+                        f"{now - heard_at:.1f} s (its router is gone or out of reach)")
+            if now - frame_at > self.stale_after_s:  # the frames stopped too: the camera's
+                return f"no frame from the camera for {now - frame_at:.1f} s"
             return f"no result from the tracking service for {now - heard_at:.1f} s"
         return None
 

@@ -105,6 +105,9 @@ def test_a_stale_session_is_never_active_whoever_says_so(offline_client: Any) ->
         assert endpoint._status(cam, t + 0.9).tracking_status == \
             mav.CAMERA_TRACKING_STATUS_FLAGS_ACTIVE
         assert no_box(endpoint._status(cam, t + 1.1))
+        # whose silence: the camera's, when this camera saw no frame either; else the service's
+        assert "no frame from the camera" in (endpoint.stale(cam, t + 1.1) or "")
+        cam.frame_at = t + 1.0
         assert "no result from the tracking service" in (endpoint.stale(cam, t + 1.1) or "")
         # no session: idle, never stale
         cam.session_id, cam.result = None, None

@@ -107,6 +107,8 @@ def test_a_restarted_instance_resumes_the_pilots_track(tmp_path: Path, wakeboard
         texts = [m.text for m in station.since(t_down, "STATUSTEXT")]
         if how == signal.SIGTERM:
             assert any("tracking service stopped" in t for t in texts), texts
+        else:  # its router went with it: no frame, no result, and that is why
+            assert any("no link to the tracking service" in t for t in texts), texts
         seen_down = len(mine())
 
         # the restarted instance resumes the session as it joins, before its ready line
