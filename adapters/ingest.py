@@ -142,6 +142,9 @@ def parse_source(text: str, *, rtsp_transport: str = "tcp", rtp_codec: str = "h2
     return Source("file", text)
 
 
+#: how far past the stream's last tracked frame a restarted ingest numbers on: the frames
+#: its last run sent that were still in flight (within the service's allowed jump, 30)
+RESUME_MARGIN = 20
 #: a live source is probed for a second, not FFmpeg's five: its first picture waits for it
 _LIVE_PROBE = {"analyzeduration": "1000000"}
 #: what an SDP may open: the SDP itself (from a file) and the RTP/UDP it names; RTP packets
@@ -260,6 +263,7 @@ class Ingest:
 
     def run(self) -> None:
         """Open, publish, reopen, until :meth:`close` (or a file's end)."""
+        self._continue_numbering()
         failures = 0
         lost_at: float | None = None
         while not self._stop.is_set():
@@ -298,6 +302,27 @@ class Ingest:
                             self.stream_id, self.source, why, self.retry_max_s)
             self._stop.wait(wait)
             self.counts["reopened"] += 1
+
+    def _continue_numbering(self) -> None:
+        """Number on from the stream's last frame the service tracked (its sessions' last
+        results), not from 0: a restarted ingest under a running session would otherwise
+        send numbers the stream has passed, refused until its numbering is followed anew,
+        and a box a pilot drew on the last frames would wait for a number not yet reached.
+        No answer, or no session: from 0 (then nothing waits for a number)."""
+        try:
+            sessions = self.client.status(stream_id=self.stream_id).sessions
+        except Exception as exc:  # no answer in time: the service follows a restart anyway
+            log.info("ingest %s: numbering from 0 (no status from the service: %s)",
+                     self.stream_id, exc)
+            return
+        last = max((s.last_seq for s in sessions if s.last_seq is not None), default=None)
+        if last is not None and last + RESUME_MARGIN > self._seq:
+            # beyond the frames the last run sent that no result had answered yet; a jump
+            # the service takes at once (it allows 30 frames more than a stream's rate could
+            # have sent since its last), counted there as frames dropped
+            self._seq = last + RESUME_MARGIN
+            log.info("ingest %s: numbering on from frame %d (the stream's last tracked, %d)",
+                     self.stream_id, self._seq + 1, last)
 
     # ------------------------------------------------------------------ reading
     def _play(self) -> None:

@@ -332,6 +332,41 @@ def test_a_file_that_cannot_be_read_ends_with_its_reason(service, tmp_path) -> N
 
 
 # ---------------------------------------------------------------------------- the command
+def test_a_restarted_ingest_numbers_on_under_a_running_session(camera, service,
+                                                                tmp_path) -> None:
+    """An ingest stopped and started again (a restarted arcf-ingest) while a session tracks
+    its stream numbers on from the stream's last tracked frame: no frame of the second run
+    is refused as a jump, its numbers follow the first run's, the session goes on."""
+    seq, units, _, size = camera
+    mp4 = write_video_file(units, tmp_path / "camera.mp4", size)
+    with TrackingClient(connect=[service.endpoint], frame_congestion="block") as client:
+        got, lock = _results(client, "again")
+        refused: list[str] = []
+        client.errors("again", callback=lambda e: refused.append(e.code.value))
+        first = Ingest(client, parse_source(str(mp4)), "again").start()
+        wait_until(lambda: first.counts["published"] >= 1, timeout=30, what="a first unit")
+        client.start("again", seq.init_box, preset="bacf")
+        wait_until(lambda: first.done, timeout=60, what="the first run played")
+        first.close()
+
+        def tracked() -> list[int]:
+            with lock:
+                return [r.frame_seq for r in got if r.track_state is not None]
+
+        wait_until(lambda: tracked(), timeout=30, what="tracked frames")
+        last = max(tracked())
+        second = Ingest(client, parse_source(str(mp4)), "again").start()
+        wait_until(lambda: second.done, timeout=60, what="the second run played")
+        second.close()
+        wait_until(lambda: any(k > last for k in tracked()), timeout=30,
+                   what="the session tracking the second run")
+    # numbered on, not from 0 (its numbers would all be at or below ``last``: the wait above
+    # would fail), by a jump the service takes at once; a worker that lagged by more than
+    # RESUME_MARGIN units of video refuses a few as out of order and follows at the third
+    assert "sequence_jump" not in refused, refused
+    assert refused.count("stale_frame") <= 1, refused
+
+
 def test_command_waits_for_a_service_that_starts_later(camera, tmp_path,
                                                        started_before_the_service) -> None:
     """``arcf-ingest`` started before the service: it says what it waits for, then plays
