@@ -57,7 +57,7 @@ import zenoh
 from zenoh.ext import Int64, z_serialize
 
 from arcf.client import ServiceError, TrackingClient
-from arcf.schemas import Result, ResultStatus, TrackState
+from arcf.schemas import ErrorCode, Result, ResultStatus, TrackState
 
 from . import ros2_types as rt
 from ._command import (
@@ -489,7 +489,8 @@ class Ros2Bridge:
                     last = next(reversed(s.headers.values()), (0, ""))
                     header = (result.capture_ts_ns, last[1])
             assert s.sessions is not None
-            if result.status == ResultStatus.STOPPED:
+            # interrupted (its instance stopped): not over, it resumes under its id
+            if result.status == ResultStatus.STOPPED and result.code != ErrorCode.INTERRUPTED:
                 s.sessions.discard(result.session_id)
                 if result.session_id == s.session_id:
                     s.session_id = None
