@@ -161,7 +161,7 @@ class _Camera:
     #: what the station was last told: stale (True) or not
     stale: bool = False
     #: what the station was last told makes the status ERROR besides staleness: an error
-    #: result's reason, a lost target (None: nothing)
+    #: result's code (``error:<code>``), a lost target (None: nothing)
     trouble: str | None = None
     #: the picture size the last CAMERA_INFORMATION carried (None: none sent yet)
     told_size: tuple[int, int] | None = None
@@ -432,20 +432,25 @@ class MavlinkCameras:
         a picture that could not be decoded, a video waiting for its keyframe, a box that
         does not fit; a lost target) is told in a STATUSTEXT once, when it starts, and its
         end once; a stale session is told by :meth:`_announce`. Call with the state lock."""
+        # the kind of trouble, told once: an error's code (its message names the frame, and
+        # a video waiting for its keyframe gives one a frame), or a lost target
+        text: str | None = None
         if result.status == ResultStatus.ERROR:
-            trouble: str | None = f"tracking error: {result.message or result.code or '?'}"
+            code = result.code.value if result.code is not None else "error"
+            trouble: str | None = f"error:{code}"
+            text = f"tracking error: {result.message or code}"
         elif result.track_state == TrackState.LOST:
-            trouble = "target lost"
+            trouble = text = "target lost"
         elif result.status == ResultStatus.STALE:
             return  # told as stale
         else:
             trouble = None
         if trouble == cam.trouble:
             return
-        if trouble is not None:
-            self._statustext(cam, trouble)
+        if text is not None:
+            self._statustext(cam, text)
         elif cam.trouble is not None:
-            self._statustext(cam, "target tracked again" if cam.trouble.startswith("target")
+            self._statustext(cam, "target tracked again" if cam.trouble == "target lost"
                              else "tracking again", mav.MAV_SEVERITY_INFO)
         cam.trouble = trouble
 

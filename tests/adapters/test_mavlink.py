@@ -136,9 +136,10 @@ def test_every_error_says_why_once(monkeypatch: pytest.MonkeyPatch,
         (cam,) = endpoint.cameras
         cam.session_id, cam.mode = "s1", mav.CAMERA_TRACKING_MODE_RECTANGLE
         seen = client.callbacks["results"]
-        waiting = "decode_error: no keyframe yet"
-        for seq in (1, 2):
-            seen(_result("error", seq, code="decode_error", message=waiting))
+        for seq in (1, 2):  # each names its frame; told once
+            seen(_result("error", seq, code="decode_error",
+                         message=f"video unit {seq}: waiting for a keyframe"))
+        waiting = "video unit 1: waiting for a keyframe"
         seen(_result("tracking", 3, track_state="tracking", confidence=0.9))
         for seq in (4, 5):
             seen(_result("tracking", seq, track_state="lost", confidence=0.1))
