@@ -262,6 +262,7 @@ def test_a_mavlink_camera_with_follow_steers_its_gimbal(offline_client: Any) -> 
         (cam,) = endpoint.cameras
         cam.last_frame = SimpleNamespace(width=1280, height=720, seq=7, source="frame",
                                          encoding="jpeg", payload=b"", is_video=False)
+        cam.frame_at = math.inf  # a camera that keeps delivering, however slow this machine
         t0 = time.monotonic()
         result, texts = station.command(mav.MAV_CMD_CAMERA_TRACK_RECTANGLE, 0.7, 0.2, 0.75,
                                         0.25)
