@@ -141,10 +141,15 @@ class Cluster:
         self._queryable = self.session.declare_queryable(self.keys.registry_all(),
                                                          self._on_registry_query)
         if self.state is not None:
-            resumed = self.state.load()
+            # in a fleet the live instances' registry is the truth: a session stopped while
+            # this one was down must not come back from its file
+            others = self._live_instances()
+            resumed = [] if others else self.state.load()
             for spec in resumed:
                 self._merge_spec(spec)
-            log.info("%d session(s) from %s", len(resumed), self.state.path)
+            log.info("%d session(s) from %s%s", len(resumed), self.state.path,
+                     f" (not read: instances {', '.join(others)} hold the registry)"
+                     if others else "")
             self._saver.start()
         self._fetch_registry()
         self._subs.append(self.session.liveliness().declare_subscriber(
@@ -208,6 +213,12 @@ class Cluster:
             return last[1], last[0] + 1, True
         assert spec is not None
         return spec.box, spec.frame_seq, False
+
+    def _live_instances(self) -> list[str]:
+        """The other instances live now (their liveliness tokens)."""
+        replies = self.session.liveliness().get(self.keys.all_instances(), timeout=2.0)
+        return sorted({str(r.ok.key_expr).rsplit("/", 1)[-1] for r in replies
+                       if r.ok is not None} - {self.instance_id})
 
     def _fetch_registry(self) -> None:
         """Ask every other instance for its registry and merge it (with its last boxes)."""

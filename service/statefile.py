@@ -6,7 +6,9 @@ to a file: at most every ``SAVE_PERIOD_S`` while something changed (a start, a s
 box), and once more when the instance stops. An instance started with the same file merges
 it before it joins, and resumes those sessions of streams it owns from their last box
 (status ``resumed``), as it would take over a dead instance's: after a SIGKILL the box is at
-most ``SAVE_PERIOD_S`` plus ``last_box_period_ms`` old.
+most ``SAVE_PERIOD_S`` plus ``last_box_period_ms`` old. Where other instances are live, their
+registry is the truth and the file is not read (a session stopped meanwhile stays stopped);
+it is written all the same.
 
 One line per session, the ``session_spec`` message as JSON (``arcf.schemas.to_json``), read
 back through the same validation as the wire's (``from_json``): a damaged line is skipped with

@@ -168,3 +168,71 @@ def test_an_instance_cut_off_from_every_router_rebalances_once_linked_again() ->
         assert rebalanced.wait(10)
     finally:
         cluster.close()
+
+
+class _Network(_Registry):
+    """A Zenoh session as a starting cluster uses it; ``others``: the instances live."""
+
+    def __init__(self, *specs: SessionSpec, others: tuple[str, ...] = ()) -> None:
+        super().__init__(*specs)
+        self.others = others
+
+    def declare_subscriber(self, key: str, callback: Any) -> Any:
+        return SimpleNamespace(undeclare=lambda: None)
+
+    declare_queryable = declare_subscriber
+
+    def liveliness(self) -> Any:
+        def tokens(key: str, **_: Any) -> list[Any]:
+            return [SimpleNamespace(ok=SimpleNamespace(key_expr=f"arcf/v1/instances/{o}"))
+                    for o in self.others]
+
+        return SimpleNamespace(get=tokens, declare_token=lambda key: SimpleNamespace(
+            undeclare=lambda: None), declare_subscriber=lambda *a, **k: SimpleNamespace(
+            undeclare=lambda: None))
+
+    def put(self, key: str, payload: bytes) -> None:
+        pass
+
+    def delete(self, key: str) -> None:
+        pass
+
+
+def test_the_state_file_brings_back_a_lone_instances_sessions(tmp_path: Any) -> None:
+    """What runs, each session with its last box, is on disk at exit; an instance started
+    with the file resumes from there, unless other instances are live (their registry is
+    the truth); a damaged line is skipped, a withdrawn session leaves the file."""
+    from arcf.service.statefile import StateFile
+
+    state = StateFile(tmp_path / "sessions.jsonl")
+    spec = SessionSpec(session_id="s1", stream_id="cam", preset="bacf", box=(4, 4, 20, 20),
+                       frame_seq=0, control_token_sha256="ab" * 32)
+    first = Cluster(session=_Network(), keys=KeySpace(), instance_id="a", state=state)
+    first.start()
+    first.publish(spec)
+    first.note_boxes(LastBoxes(instance_id="a", worker=0, boxes=[
+        LastBox(session_id="s1", frame_seq=41, box=(9, 9, 20, 20))]))
+    first.close()
+    with state.path.open("a") as out:
+        out.write('{"v": 1, "type": "session_spec", "session_id": "broken"}\n')
+
+    again = Cluster(session=_Network(), keys=KeySpace(), instance_id="a2", state=state)
+    again.start()
+    try:
+        read = again.spec("s1")
+        assert read is not None and again.spec("broken") is None
+        assert read.model_copy(update={"last_seq": None, "last_box": None}) == spec
+        assert again.resume_point("s1") == ((9.0, 9.0, 20.0, 20.0), 42, True)
+        again.withdraw("s1")
+    finally:
+        again.close()
+    assert [s.session_id for s in state.load()] == []
+
+    state.save([spec])
+    fleet = Cluster(session=_Network(others=("b",)), keys=KeySpace(), instance_id="a3",
+                    state=state)
+    fleet.start()
+    try:
+        assert fleet.spec("s1") is None  # b's registry, not the file
+    finally:
+        fleet.close()
