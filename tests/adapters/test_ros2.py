@@ -331,3 +331,32 @@ def test_ros2_nodes_track_through_the_bridge() -> None:
         assert service.stop() == 0
 
 
+
+
+def test_an_interrupted_session_is_kept_an_ended_one_is_not(offline_client: Any) -> None:
+    """The ``stopped`` result of an instance that stops (code ``interrupted``) leaves the
+    stream's session in place, to resume under its id; one the service ended clears it."""
+    from arcf.schemas import Result
+
+    ros = open_session("peer", listen=[])  # the ROS 2 side, on no network
+    bridge = Ros2Bridge(offline_client, {"/camera/image/compressed": "cam1"}, ros_session=ros)
+    try:
+        s = bridge.streams["cam1"]
+        s.session_id = "s1"
+        nan = float("nan")
+
+        def stopped(code: str) -> Result:
+            return Result(session_id="s1", stream_id="cam1", frame_seq=3, capture_ts_ns=1,
+                          box=[nan] * 4, peak=nan, psr=nan, aberrance=nan,
+                          aberrance_release=nan, scale=nan, status="stopped", dropped=0,
+                          code=code, message="why", received_ts_ns=1, decode_s=0.0,
+                          track_s=0.0, published_ts_ns=1)
+
+        seen = offline_client.callbacks["results"]
+        seen(stopped("interrupted"))
+        assert s.session_id == "s1"
+        seen(stopped("session_expired"))
+        assert s.session_id is None
+    finally:
+        bridge.close()
+        ros.close()
