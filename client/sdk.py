@@ -11,6 +11,7 @@
 
 from __future__ import annotations
 
+import logging
 import queue
 import threading
 import time
@@ -40,8 +41,10 @@ from arcf.schemas import (
     encode,
 )
 
-from .media.encodings import encode_image
+from .media.encodings import VIDEO_ENCODINGS, encode_image
 from .transport import open_session
+
+log = logging.getLogger(__name__)
 
 M = TypeVar("M", bound=Message)
 
@@ -116,6 +119,7 @@ class TrackingClient:
         tie_sessions: bool = True,
         max_payload: int = 8 * 1024 * 1024,
         frame_congestion: str = "drop",
+        video_history: int = 60,
     ) -> None:
         """``tie_sessions``: declare this station's liveliness token and name it in every
         ``start``, so that the service ends the sessions it started when the station is gone
@@ -127,7 +131,17 @@ class TrackingClient:
         way, and counted by the service in the next result's ``dropped``; a starved CPU can
         cause that too, about 1 frame in 1,000 measured on a 2-core machine running 4 busy
         loops), or ``"block"`` (replays, recordings, tests: a frame waits for room, so
-        ``publish_frame`` may stall on a slow link, but no frame is lost)."""
+        ``publish_frame`` may stall on a slow link, but no frame is lost).
+        ``video_history``: the last access units of each video stream (h264 / h265) this
+        station keeps for the service (zenoh-ext's advanced publisher and its cache). A worker
+        that subscribes to the stream when a session starts gets them first and decodes from
+        their keyframe, so that the box lands on the picture it was drawn on instead of
+        waiting for the next keyframe: enough for a group of pictures plus the frames between
+        the pilot's click and the session's start (60: a 1.5 s group at 30 fps, with room).
+        The service takes at most ``video_queue`` and ``max_stream_fps`` of them (60 each by
+        default). It needs Zenoh's timestamping on the session, which sessions opened here
+        have; on a ``session`` given without it, a plain publisher is used, saying so. 0:
+        none kept."""
         if frame_congestion not in ("drop", "block"):
             raise ValueError(f"frame_congestion must be 'drop' or 'block', got "
                              f"{frame_congestion!r}")
@@ -136,7 +150,9 @@ class TrackingClient:
         self.max_payload = max_payload
         self.keys = KeySpace(prefix)
         self._own = session is None
-        self.session = session if session is not None else open_session(mode, connect=connect)
+        self.session = session if session is not None else open_session(
+            mode, connect=connect, timestamping=True)
+        self.video_history = video_history
         self.client_id = client_id or uuid.uuid4().hex
         self._token = (self.session.liveliness().declare_token(
             self.keys.client_token(self.client_id)) if tie_sessions else None)
@@ -186,8 +202,7 @@ class TrackingClient:
             self._seq[stream_id] = seq
             pub = self._publishers.get(stream_id)
             if pub is None:
-                pub = self._publishers[stream_id] = self.session.declare_publisher(
-                    self.keys.frames(stream_id), congestion_control=self._congestion)
+                pub = self._publishers[stream_id] = self._declare_frames(stream_id, encoding)
                 # announced while this client publishes it: viewers list it before any
                 # session tracks it (``streams``)
                 self._announced[stream_id] = self.session.liveliness().declare_token(
@@ -197,6 +212,23 @@ class TrackingClient:
                       encoding=encoding, width=width, height=height, payload=data)
         pub.put(encode(frame))
         return seq
+
+    def _declare_frames(self, stream_id: str, encoding: str) -> Any:
+        """A stream's frame publisher: a video stream's keeps its last ``video_history``
+        units for a worker that subscribes late (see ``__init__``)."""
+        key = self.keys.frames(stream_id)
+        if encoding in VIDEO_ENCODINGS and self.video_history > 0:
+            import zenoh.ext
+
+            try:
+                return zenoh.ext.declare_advanced_publisher(
+                    self.session, key, congestion_control=self._congestion,
+                    cache=zenoh.ext.CacheConfig(max_samples=self.video_history))
+            except zenoh.ZError as exc:  # a session without timestamping
+                log.warning("stream %r: its recent video is not kept for the service (%s); "
+                            "a session started between keyframes waits for the next one",
+                            stream_id, exc)
+        return self.session.declare_publisher(key, congestion_control=self._congestion)
 
     # ------------------------------------------------------------------ control
     def _request(self, request: Any, timeout: float) -> Any:

@@ -40,6 +40,7 @@ def make_config(
     lease_ms: int | None = None,
     max_message_size: int | None = None,
     open_timeout_ms: int | None = None,
+    timestamping: bool = False,
 ) -> zenoh.Config:
     """A Zenoh config: the file (if any), then mode, explicit endpoints and scouting off.
 
@@ -49,6 +50,8 @@ def make_config(
     ``open_timeout_ms``: how long opening a link to one endpoint may take before the next
     of ``connect`` is tried (Zenoh's default, 10 s, is what a client whose router became
     unreachable, not dead, waits on it before moving to the next one).
+    ``timestamping``: stamp what this session publishes (Zenoh's HLC), which zenoh-ext's
+    advanced publisher needs for its cache (a station's recent video, for the service).
     """
     conf = zenoh.Config.from_file(str(config_file)) if config_file else zenoh.Config()
     conf.insert_json5("mode", json.dumps(mode))
@@ -63,6 +66,8 @@ def make_config(
         conf.insert_json5("transport/link/rx/max_message_size", str(int(max_message_size)))
     if open_timeout_ms:
         conf.insert_json5("transport/unicast/open_timeout", str(int(open_timeout_ms)))
+    if timestamping:
+        conf.insert_json5("timestamping/enabled", "true")
     return conf
 
 

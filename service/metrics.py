@@ -36,6 +36,11 @@ VIDEO_RESYNCS = Counter(
     "memory: the worker passed worker_max_rss_mb)",
     ["cause"],
 )
+VIDEO_REPLAYED = Counter(
+    "arcf_video_replayed_pictures_total",
+    "Video pictures decoded again from their group's keyframe for a box drawn on a picture "
+    "the worker had passed, and tracked by that session to catch up to live",
+)
 SHED = Counter(
     "arcf_sessions_shed_total",
     "Sessions a worker ended because it was over worker_budget while another stream's frames "

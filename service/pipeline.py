@@ -234,14 +234,15 @@ class FramePipeline:
         is an error for the sessions, reported on the stream and counted, and the decoder
         waits for the next keyframe."""
         if stream.decoder is None or stream.decoder.codec != codec.ffmpeg:
-            stream.decoder = codec.stream_decoder(self.settings.max_pixels)
+            stream.decoder = codec.stream_decoder(self.settings.max_pixels,
+                                                  self.settings.video_history)
             stream.unit_times.clear()
         times = stream.unit_times
         times[seq] = (capture_ts_ns, received_ns)
         while len(times) > 2 * self.settings.video_queue:
             del times[next(iter(times))]
         t0, c0 = time.perf_counter(), time.thread_time()
-        out = stream.decoder.decode(seq, data)
+        out = stream.decoder.decode(seq, data, (capture_ts_ns, received_ns))
         decode_s = time.perf_counter() - t0
         c0 = self.clock.since("decode", c0)
         self.metrics.DECODE.observe(decode_s)

@@ -78,6 +78,12 @@ class ServiceSettings:
         "the stream resynchronises at its next keyframe (counted and reported); whatever "
         "the count, a stream's queue holds at most the larger of 32 MiB and two frames of "
         "max_payload"))
+    video_history: int = field(default=300, metadata=_about(
+        "access units of a video stream's current group of pictures kept (from its keyframe "
+        "on, at most 32 MiB): a box drawn on a picture the worker has decoded already (the "
+        "pilot's view lags the stream) is applied to that very picture, decoded again from "
+        "the keyframe, and the session catches up to live; a longer group is not kept, and "
+        "its box applies to the next picture, saying so. 0: off"))
     video_key: str = field(default="video/{stream}/stream", metadata=_about(
         "where a stream's video also arrives as CDR foxglove.CompressedVideo access units "
         "(BlueOS's MAVLink camera manager's convention); '{stream}' is the stream id; empty: "
@@ -207,6 +213,8 @@ class ServiceSettings:
             raise ValueError("max_frame_age_ms must be >= 0 (0: off)")
         if self.video_queue < 1:
             raise ValueError("video_queue must be >= 1")
+        if self.video_history < 0:
+            raise ValueError("video_history must be >= 0")
         if self.video_key and (self.video_key.count("{stream}") != 1
                                or any(c in self.video_key.replace("{stream}", "")
                                       for c in "*$?#{}")

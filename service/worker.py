@@ -60,6 +60,11 @@ from .turns import TurnBudget
 
 log = logging.getLogger(__name__)
 
+#: a stream's history older than this (seconds) is not asked for when a worker subscribes:
+#: a box is drawn on what the pilot sees now, and a station silent for longer has restarted
+#: or moved on
+HISTORY_MAX_AGE_S = 5.0
+
 
 class _CommandRefused(Exception):
     """A command the worker refuses for the request's own fault (a wire error code)."""
@@ -73,6 +78,7 @@ class Worker:
     def __init__(self, index: int, settings: ServiceSettings, commands: Any, responses: Any,
                  stop: Any, inflight: InFlight | None = None) -> None:
         import zenoh
+        import zenoh.ext
 
         from arcf.client.transport import open_session
 
@@ -89,6 +95,7 @@ class Worker:
         self.metrics = metrics
         self.keys = KeySpace(settings.prefix)
         self.zenoh = zenoh
+        self.zenoh_ext = zenoh.ext
         # before the liveliness token: "ready" means no first-frame import or compile stall
         log.info("worker %d: preparing the trackers' compiled kernels (the first start on "
                  "a machine compiles them, about a minute; later starts load them)", index)
@@ -386,7 +393,14 @@ class Worker:
         inbox = Inbox(self.keys.frames(stream_id), video_key, cfg.frame_queue, cfg.video_queue,
                       cfg.max_stream_fps, cfg.max_payload, self.wake, self.metrics, self.clock,
                       cfg.max_frame_age_ms / 1e3)
-        sub = self.session.declare_subscriber(self.keys.frames(stream_id), inbox)
+        # advanced: the stream's recent history comes first where its station keeps it (the
+        # SDK's video publishers), so that decoding starts at the keyframe before the
+        # picture a box was drawn on; plain publishers' samples arrive as to any subscriber
+        sub = self.zenoh_ext.declare_advanced_subscriber(
+            self.session, self.keys.frames(stream_id), inbox,
+            history=self.zenoh_ext.HistoryConfig(
+                max_samples=max(1, min(cfg.video_queue, int(cfg.max_stream_fps))),
+                max_age=HISTORY_MAX_AGE_S))
         errors = self.session.declare_publisher(
             self.keys.errors(stream_id), congestion_control=self.zenoh.CongestionControl.DROP)
         stream = Stream(stream_id, sub, inbox, errors,

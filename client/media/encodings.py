@@ -112,11 +112,13 @@ class Codec:
     def is_keyframe(self, unit: bytes) -> bool:
         return any(kind in self.keyframe_types for kind, _ in self.nal_units(unit))
 
-    def stream_decoder(self, max_pixels: int = 8_847_360) -> StreamDecoder:
-        """A fresh decoder for one stream of this encoding's access units."""
+    def stream_decoder(self, max_pixels: int = 8_847_360,
+                       history_units: int = 0) -> StreamDecoder:
+        """A fresh decoder for one stream of this encoding's access units (keeping up to
+        ``history_units`` of its group of pictures, for ``replay``)."""
         from .video import StreamDecoder
 
-        return StreamDecoder(self.decoder_name, max_pixels)
+        return StreamDecoder(self.decoder_name, max_pixels, history_units)
 
     def size_reader(self, max_pixels: int = 8_847_360) -> PictureSize:
         """A stream's picture size from its keyframes, without decoding every unit."""

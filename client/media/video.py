@@ -19,6 +19,10 @@ state for one stream (PyAV, which ships FFmpeg in its wheels):
   ``MAX_NAL_UNITS`` start codes is refused (FFmpeg keeps state per NAL unit: 2 MiB of bare
   start codes took a decoder to 1.1 GB), and a parameter set declaring more than
   ``max_pixels`` is refused by FFmpeg before a picture is allocated (cause ``oversized``);
+* it remembers the units of the current group of pictures (from its keyframe on, bounded in
+  units and bytes), so that a picture of that group can be decoded again
+  (:meth:`StreamDecoder.replay`): a box drawn on a picture the decoder has passed is applied
+  to that very picture;
 * a picture is converted to BGR only when asked for (``Decoded.pixels``), and only where
   the trackers read it (:mod:`.convert`): units decoded
   only to keep the chain intact, superseded before they are tracked, cost their decoding
@@ -34,10 +38,11 @@ from __future__ import annotations
 import logging
 import re
 import threading
+from collections.abc import Iterator
 from dataclasses import dataclass
 from enum import Enum
 from functools import cached_property
-from typing import cast
+from typing import Any, cast
 
 import av
 import av.logging
@@ -92,10 +97,58 @@ class Decoded:
         return None if self.picture is None else picture_bgr_region(self.picture, region)
 
 
-class StreamDecoder:
-    """The decoder of one stream's access units (``codec``: ``"h264"`` or ``"hevc"``)."""
+@dataclass(frozen=True)
+class Unit:
+    """An access unit of the group of pictures a decoder remembers."""
 
-    def __init__(self, codec: str, max_pixels: int = 8_847_360) -> None:
+    seq: int
+    #: the unit as decoded (a keyframe with the parameter sets put in front of it)
+    data: bytes
+    #: whatever the caller gave with it (the service: the unit's capture and arrival times)
+    tag: Any = None
+
+
+class GroupOfPictures:
+    """The units since the last keyframe, in order: what it takes to decode any picture of the
+    group again. Bounded by ``max_units`` and ``max_bytes``: a group longer than that is
+    forgotten until the next keyframe (a replay then finds nothing)."""
+
+    def __init__(self, max_units: int, max_bytes: int) -> None:
+        self.max_units, self.max_bytes = max_units, max_bytes
+        self.units: list[Unit] = []
+        self._bytes = 0
+        #: the group outgrew the bounds (or broke): nothing is kept until the next keyframe
+        self.overflowed = True
+
+    def start(self, unit: Unit) -> None:
+        """A keyframe: a new group."""
+        self.units, self._bytes, self.overflowed = [], 0, False
+        self.add(unit)
+
+    def add(self, unit: Unit) -> None:
+        if self.overflowed:
+            return
+        self.units.append(unit)
+        self._bytes += len(unit.data)
+        if len(self.units) > self.max_units or self._bytes > self.max_bytes:
+            self.forget()
+
+    def forget(self) -> None:
+        self.units, self._bytes, self.overflowed = [], 0, True
+
+    def covers(self, seq: int) -> bool:
+        """Whether the picture of unit ``seq`` can be decoded again from the kept units."""
+        return bool(self.units) and self.units[0].seq <= seq <= self.units[-1].seq
+
+
+class StreamDecoder:
+    """The decoder of one stream's access units (``codec``: ``"h264"`` or ``"hevc"``).
+
+    ``history_units`` / ``history_bytes``: the bounds of the group of pictures kept for
+    :meth:`replay` (0 units: none kept)."""
+
+    def __init__(self, codec: str, max_pixels: int = 8_847_360, history_units: int = 0,
+                 history_bytes: int = 32 << 20) -> None:
         if codec not in KEYFRAME_TYPES:
             raise ValueError(f"codec must be 'h264' or 'hevc', got {codec!r}")
         self.codec = codec
@@ -103,6 +156,7 @@ class StreamDecoder:
         self._ctx: av.VideoCodecContext | None = None
         self._params: dict[int, bytes] = {}
         self._next_seq: int | None = None
+        self.group = GroupOfPictures(history_units, history_bytes)
         #: counts by outcome, and resynchronisations by cause
         self.counts: dict[str, int] = {}
         # decoding errors and concealment notices must reach the capture (outside it, PyAV
@@ -121,12 +175,14 @@ class StreamDecoder:
 
     def _resync(self, cause: str, reason: str) -> Decoded:
         self._ctx = None
+        self.group.forget()
         self._count(Outcome.RESYNC.value)
         self._count(f"resync_{cause}")
         return Decoded(Outcome.RESYNC, reason=reason, cause=cause)
 
-    def decode(self, seq: int, data: bytes) -> Decoded:
-        """Decode the access unit numbered ``seq`` of the stream."""
+    def decode(self, seq: int, data: bytes, tag: Any = None) -> Decoded:
+        """Decode the access unit numbered ``seq`` of the stream (``tag``: kept with it for
+        :meth:`replay`)."""
         gap = self._next_seq is not None and seq != self._next_seq
         expected, self._next_seq = self._next_seq, seq + 1
         try:
@@ -147,18 +203,24 @@ class StreamDecoder:
             # the loss ended at a keyframe: the next chain starts with this very unit
             self._resync("gap", "units were lost before a keyframe")
             resynced = "gap"
-        if self._ctx is None:
-            if not keyframe:
-                self._count(Outcome.WAITING.value)
-                return Decoded(Outcome.WAITING, reason="waiting for a keyframe")
+        if self._ctx is None and not keyframe:
+            self._count(Outcome.WAITING.value)
+            return Decoded(Outcome.WAITING, reason="waiting for a keyframe")
+        if keyframe:  # decodable on its own: with the parameter sets it came without
             present = {kind for kind, _ in units}
             missing = [u for k, u in sorted(self._params.items()) if k not in present]
             data = b"".join(missing) + data
+        if self._ctx is None:
             self._ctx = cast(av.VideoCodecContext, av.CodecContext.create(self.codec, "r"))
             self._ctx.thread_type = "NONE"
             # FFmpeg refuses a larger picture before allocating it: a parameter set declaring
             # a huge size (a decoding bomb) costs nothing
             self._ctx.options = {"max_pixels": str(self.max_pixels)}
+        if self.group.max_units > 0:
+            if keyframe:
+                self.group.start(Unit(seq, data, tag))
+            else:
+                self.group.add(Unit(seq, data, tag))
         failed: Exception | None = None
         frames: list[av.VideoFrame] = []
         with av.logging.Capture(local=False) as logs:
@@ -190,6 +252,24 @@ class StreamDecoder:
         self._count(Outcome.FRAME.value)
         return Decoded(Outcome.FRAME, picture=frame,
                        seq=seq if frame.pts is None else int(frame.pts), resynced=resynced)
+
+
+    def replay(self, first: int, last: int) -> Iterator[tuple[Decoded, Any]]:
+        """The pictures of units ``first`` to ``last`` decoded again from the kept group (a
+        decoder of their own: this one's state is untouched), each with its unit's tag.
+        Nothing if the group does not hold ``first``; it stops at the first picture that
+        does not decode cleanly (none of its successors could be trusted)."""
+        if not self.group.covers(first):
+            return
+        units = [u for u in self.group.units if u.seq <= last]
+        tags = {u.seq: u.tag for u in units}
+        again = StreamDecoder(self.codec, self.max_pixels)
+        for unit in units:
+            out = again.decode(unit.seq, unit.data)
+            if out.outcome in (Outcome.WAITING, Outcome.RESYNC):
+                return
+            if out.outcome is Outcome.FRAME and out.seq is not None and first <= out.seq <= last:
+                yield out, tags.get(out.seq)
 
 
 class PictureSize:

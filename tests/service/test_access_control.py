@@ -16,9 +16,11 @@ import pytest
 import zenoh
 
 from arcf.client import ServiceError, TrackingClient
+from arcf.client.media.images import decode_compressed
 from arcf.data import data_root
 from arcf.eval import load_dataset
 from arcf.loadtools.procs import ServiceProcess, free_port
+from arcf.loadtools.video import encode_video
 from arcf.loadtools.waiting import next_result, wait_for_peers
 from arcf.schemas import Status, StatusRequest, decode, encode
 
@@ -82,7 +84,7 @@ def test_only_authorised_stations_track(tmp_path: Path) -> None:
     with zenoh.open(conf):
         svc = ServiceProcess("--zenoh-config",
                              str(peer_config(tmp_path, "arcf-service-1", endpoint)),
-                             connect=endpoint, workers=1)
+                             "--client-grace-s", "1", connect=endpoint, workers=1)
         try:
             station = zenoh.open(zenoh.Config.from_file(
                 str(peer_config(tmp_path, "station-01", endpoint))))
@@ -156,6 +158,24 @@ def test_only_authorised_stations_track(tmp_path: Path) -> None:
                 good.stop(ack.session_id)
                 results.close()
                 assert svc.metric("arcf_frames_received_total") == 4
+                # an H.264 stream nobody tracked yet: the box drawn on frame 5 (keyframes at 0
+                # and 4) lands there, since the rules let the worker ask for the station's
+                # recent units (zenoh-ext's @adv keys)
+                units = encode_video([decode_compressed(d) for d in data * 2], gop=4)
+                for i, unit in enumerate(units[:7]):
+                    good.publish_frame("cam-video", data=unit, encoding="h264", seq=i)
+                video = good.results("cam-video")
+                good.start("cam-video", seq.init_box, preset="bacf", frame_seq=5)
+                first = next_result(video, timeout=30)
+                assert (first.frame_seq, first.status.value) == (5, "initialized")
+                assert next_result(video, 5, timeout=30).frame_seq == 6
+                # the station's liveliness token passes the rules: past the grace period
+                # (1 s here) its session still tracks (the window a refused token would end it)
+                time.sleep(1.5)
+                good.publish_frame("cam-video", data=units[7], encoding="h264", seq=7)
+                last = next_result(video, 6, timeout=30)
+                assert (last.frame_seq, last.status.value) == (7, "tracking")
+                video.close()
             # ...nor read anyone's video or results
             assert snooped == []
             for sub in snoops:

@@ -164,3 +164,40 @@ def test_pictures_are_converted_only_when_asked_for(h264: list[bytes]) -> None:
     first = out.image
     assert first is out.image  # converted once
     np.testing.assert_array_equal(first, plain(h264[:1])[0])
+
+
+def test_a_picture_of_the_current_group_decodes_again_as_it_did_live(h264: list[bytes]) -> None:
+    """The group since the last keyframe is kept: any of its pictures decodes again, pixel for
+    pixel as the live decoder gave it, each with its unit's tag; a keyframe that came without
+    its parameter sets still starts a group that decodes on its own."""
+    bare = b"".join(u for k, u in nal_units(h264[GOP], "h264") if k not in (7, 8))
+    units = [*h264[:GOP], bare, *h264[GOP + 1:]]
+    dec = StreamDecoder("h264", history_units=3 * GOP)
+    live = [dec.decode(i, u, tag=f"unit {i}") for i, u in enumerate(units[:2 * GOP - 2])]
+    assert [u.seq for u in dec.group.units] == list(range(GOP, 2 * GOP - 2))
+    assert not dec.group.covers(GOP - 1) and dec.group.covers(2 * GOP - 3)
+    again = list(dec.replay(GOP + 3, GOP + 6))
+    assert [(d.seq, tag) for d, tag in again] == [(i, f"unit {i}") for i in range(13, 17)]
+    for d, _ in again:
+        np.testing.assert_array_equal(d.image, live[d.seq or 0].image)
+    assert list(dec.replay(GOP - 2, GOP + 1)) == []  # before the kept group: nothing
+    # the live decoder's state is its own: it goes on where it was
+    assert dec.decode(2 * GOP - 2, units[2 * GOP - 2]).outcome is Outcome.FRAME
+
+
+def test_the_kept_group_is_bounded_and_dropped_when_the_chain_breaks(
+        h264: list[bytes]) -> None:
+    short = StreamDecoder("h264", history_units=4)
+    for i, u in enumerate(h264[:GOP]):
+        short.decode(i, u)
+    assert not short.group.covers(0) and short.group.units == []  # outgrew: none kept
+    short.decode(GOP, h264[GOP])
+    assert short.group.covers(GOP)  # the next keyframe starts a group again
+    broken = StreamDecoder("h264", history_units=3 * GOP)
+    for i, u in enumerate(h264[:5]):
+        broken.decode(i, u)
+    assert broken.decode(7, h264[7]).outcome is Outcome.RESYNC  # 5 and 6 lost
+    assert broken.group.units == [] and list(broken.replay(0, 4)) == []
+    none = StreamDecoder("h264")  # the default: nothing kept
+    none.decode(0, h264[0])
+    assert none.group.units == [] and list(none.replay(0, 0)) == []

@@ -93,6 +93,38 @@ def test_h264_frames_give_the_librarys_boxes_on_the_decoded_pictures(service, cl
     assert all(got[i].decode_s > 0 and got[i].dropped == 0 for i in range(N))
 
 
+def test_a_box_drawn_between_keyframes_lands_on_its_picture(service, clip) -> None:
+    """The pilot drew on frame 13 of a stream nobody tracked yet (keyframes at 10 and 20): the
+    worker that subscribes when the session starts gets the station's recent units first
+    (the SDK keeps them), decodes from keyframe 10, applies the box to frame 13, tracks 14
+    to 16 to catch up, and goes on live: the library's boxes started on frame 13."""
+    seq, units, pictures = clip
+    drawn, sent = 13, 17
+    box = tuple(float(v) for v in seq.groundtruth[drawn])
+    with TrackingClient(connect=[service.endpoint], frame_congestion="block") as client:
+        for i in range(sent):  # before any session: nobody receives them but the cache
+            client.publish_frame("h264-drawn", data=units[i], encoding="h264", seq=i)
+        results = client.results("h264-drawn")
+        client.start("h264-drawn", box, preset=PRESET, frame_seq=drawn)
+        got: list = []
+
+        def through(last: int) -> bool:
+            got.extend(r for r in results.iter(timeout=0.2) if r.status != "stale")
+            return bool(got) and got[-1].frame_seq >= last
+
+        wait_until(lambda: through(sent - 1), timeout=60, what="the results up to live")
+        for i in range(sent, N):  # live, each unit once the one before is tracked
+            client.publish_frame("h264-drawn", data=units[i], encoding="h264", seq=i)
+            wait_until(lambda i=i: through(i), timeout=60, what=f"the result of frame {i}")
+        results.close()
+    assert [r.frame_seq for r in got] == list(range(drawn, N))
+    assert [r.status for r in got] == ["initialized"] + ["tracking"] * (N - drawn - 1)
+    assert got[0].message is None  # on its own picture, not "applied to frame ..."
+    want = library(pictures[drawn:], box)
+    np.testing.assert_allclose([r.box for r in got], [r.box for r in want], atol=1e-9)
+    assert service.metric("arcf_video_replayed_pictures_total") >= 1
+
+
 @pytest.mark.parametrize("convention", ["frame", "compressed_video"])
 def test_h265_in_both_conventions_gives_the_librarys_boxes(service, hevc_clip,
                                                            convention: str) -> None:

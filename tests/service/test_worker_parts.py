@@ -350,3 +350,50 @@ def test_a_session_over_its_budget_is_returned_to_end(wakeboard7) -> None:  # ty
     assert [(e.session.session_id, e.code) for e in ends] == [
         ("costly", ErrorCode.LIMIT_EXCEEDED)]
     assert "budget of a session (session_budget_ms)" in ends[0].why
+
+
+def test_a_box_drawn_on_a_passed_video_picture_starts_there_and_catches_up(
+        pipeline: FramePipeline, wakeboard7) -> None:  # type: ignore[no-untyped-def]
+    """The pilot drew on frame 6 of an H.264 stream; the worker has decoded up to frame 9
+    when the box comes. Frame 6 is decoded again from its group's keyframe (5), the box
+    applied there, and 7, 8 and 9 tracked: the boxes a tracker started on frame 6 of the
+    plainly decoded video gives. A box drawn before the kept group (frame 3) applies to the
+    next picture, saying so; and no session gets a result before the frame it was drawn on."""
+    from arcf import create_tracker
+    from arcf.loadtools.video import decode_video, encode_video
+    from arcf.service.tracking import Tracking
+
+    images = [cv2.imread(str(p)) for p in wakeboard7.frames[:12]]
+    units = encode_video(images, "h264", gop=5)
+    box = tuple(float(v) for v in wakeboard7.groundtruth[6])
+    stream = _real_stream()
+    tracking = Tracking(metrics, StageClock(metrics.STAGE_CPU), session_budget_s=10.0)
+    for i in range(9):
+        picture = pipeline.take(stream, _frame("cam", i, units[i], "h264"), 0)
+        assert picture is not None and tracking.run(stream, picture) == []
+    drawn = _tracked_session("drawn", box)
+    drawn.pending_seq = 6
+    early = _tracked_session("early", box)
+    early.pending_seq = 3  # group 0-4 is gone: applies to the next picture
+    ahead = _tracked_session("ahead", box)
+    ahead.pending_seq = 11  # drawn on a frame not here yet: nothing until it comes
+    stream.sessions.update(drawn=drawn, early=early, ahead=ahead)
+    before = REGISTRY.get_sample_value("arcf_video_replayed_pictures_total") or 0.0
+    live = pipeline.take(stream, _frame("cam", 9, units[9], "h264"), 0)
+    assert live is not None and tracking.run(stream, live) == []
+    broken = pipeline.take(stream, _frame("cam", 10, units[10][:40], "h264"), 0)
+    assert broken is not None and broken.code is ErrorCode.DECODE_ERROR
+    assert tracking.run(stream, broken) == []
+    assert [(r.frame_seq, r.status, r.message) for r in drawn.publisher.sent] == [
+        (6, "initialized", None), (7, "tracking", None), (8, "tracking", None),
+        (9, "tracking", None), (10, "error", broken.text)]
+    assert (REGISTRY.get_sample_value("arcf_video_replayed_pictures_total") or 0.0) == before + 3
+    reference = create_tracker("arcf-h")
+    plain = decode_video(units)
+    want = [reference.init(plain[6], box).box] + [reference.update(plain[i]).box
+                                                  for i in (7, 8, 9)]
+    assert [tuple(r.box) for r in drawn.publisher.sent[:4]] == [tuple(b) for b in want]
+    assert [(r.frame_seq, r.status, r.message) for r in early.publisher.sent[:1]] == [
+        (9, "initialized", "box of frame 3 applied to frame 9, the first this session saw "
+                           "at or after it")]
+    assert ahead.publisher.sent == []
