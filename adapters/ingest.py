@@ -79,6 +79,9 @@ class Source:
     options: dict[str, str] = field(default_factory=dict)
     #: the SDP text for an ``rtp`` source given as ``rtp://HOST:PORT``
     sdp: str | None = None
+    #: a UDP source with no address (``rtp://:PORT``, ``udp://:PORT``): it listens on every
+    #: interface, so any host that reaches the port can send video into the stream
+    everywhere: bool = False
 
     @property
     def live(self) -> bool:
@@ -129,14 +132,16 @@ def parse_source(text: str, *, rtsp_transport: str = "tcp", rtp_codec: str = "h2
         if not 0 < port < 65536:
             raise ValueError(f"no UDP port {port}")
         return Source("rtp", text, "sdp", _SDP_OPTIONS,
-                      sdp=rtp_sdp(host, port, rtp_codec, payload_type))
+                      sdp=rtp_sdp(host, port, rtp_codec, payload_type),
+                      everywhere=host in ("0.0.0.0", ""))
     if text.endswith(".sdp"):
         return Source("rtp", text, "sdp", _SDP_OPTIONS)
     if text.startswith("udp://"):
         sep = "&" if "?" in text else "?"
         # a lost datagram is a gap FFmpeg reports, not a reason to stop reading
         return Source("mpegts", f"{text}{sep}overrun_nonfatal=1&fifo_size=65536", "mpegts",
-                      dict(_LIVE_PROBE))
+                      dict(_LIVE_PROBE),
+                      everywhere=re.match(r"udp://@?(0\.0\.0\.0)?:", text) is not None)
     if text.startswith("v4l2:") or text.startswith("/dev/video"):
         return Source("v4l2", text.removeprefix("v4l2:"))
     return Source("file", text)
@@ -565,6 +570,11 @@ def main(argv: Sequence[str] | None = None) -> int:
                               rtp_codec=args.rtp_codec, payload_type=args.payload_type)
     except ValueError as exc:
         ap.error(str(exc))
+    if source.everywhere:
+        log.warning("%s listens on every interface: any host that reaches the port can send "
+                    "video into stream %r; give the address of the camera's link "
+                    "(%s://ADDRESS:PORT) to keep to it", source, args.stream,
+                    source.url.split(":", 1)[0])
     client, stop = connect(args, log)
     if client is None:
         return 2

@@ -52,6 +52,12 @@ def test_sources_from_what_an_operator_types() -> None:
     assert qgc.sdp is not None and "m=video 5600 RTP/AVP 96" in qgc.sdp
     assert "a=rtpmap:96 H264/90000" in qgc.sdp and "c=IN IP4 0.0.0.0" in qgc.sdp
     assert "H265/90000" in (parse_source("rtp://@127.0.0.1:5602", rtp_codec="h265").sdp or "")
+    # an address keeps a UDP source to that link; without one it listens everywhere (said)
+    assert qgc.everywhere and parse_source("udp://:5601").everywhere
+    assert parse_source("udp://0.0.0.0:5601").everywhere
+    assert not any(parse_source(t).everywhere for t in (
+        "rtp://127.0.0.1:5600", "rtp://@10.0.0.1:5600", "udp://192.168.1.2:5601",
+        "rtsp://h/x", "flight.mp4"))
     assert parse_source("cam.sdp").kind == "rtp"
     ts = parse_source("udp://:5601")
     assert ts.kind == "mpegts" and "overrun_nonfatal=1" in ts.url
