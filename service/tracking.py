@@ -73,10 +73,13 @@ class Tracking:
     @staticmethod
     def _replayable(stream: Stream, s: Session, picture: Picture) -> bool:
         """Whether a session's box was drawn on a picture before ``picture`` that the
-        stream's decoder can decode again (its group of pictures is kept)."""
+        stream's decoder can decode again (its group of pictures is kept), and that the
+        session has not answered yet: a re-drawn track whose results went past it goes on
+        from the next picture, so that no frame is answered twice."""
         return (s.pending_box is not None and s.pending_seq is not None
-                and s.pending_seq < picture.seq and stream.decoder is not None
-                and stream.decoder.group.covers(s.pending_seq))
+                and s.pending_seq < picture.seq
+                and (s.last_seq is None or s.last_seq < s.pending_seq)
+                and stream.decoder is not None and stream.decoder.group.covers(s.pending_seq))
 
     def _catch_up(self, stream: Stream, s: Session, picture: Picture) -> Ending | None:
         """A box drawn on a picture the stream's decoder has passed (the pilot's view lags

@@ -358,7 +358,9 @@ def test_a_box_drawn_on_a_passed_video_picture_starts_there_and_catches_up(
     when the box comes. Frame 6 is decoded again from its group's keyframe (5), the box
     applied there, and 7, 8 and 9 tracked: the boxes a tracker started on frame 6 of the
     plainly decoded video gives. A box drawn before the kept group (frame 3) applies to the
-    next picture, saying so; and no session gets a result before the frame it was drawn on."""
+    next picture, saying so, as does a box re-drawn on a frame the track has answered (no
+    frame is answered twice); and no session gets a result before the frame it was drawn
+    on."""
     from arcf import create_tracker
     from arcf.loadtools.video import decode_video, encode_video
     from arcf.service.tracking import Tracking
@@ -376,17 +378,25 @@ def test_a_box_drawn_on_a_passed_video_picture_starts_there_and_catches_up(
     early = _tracked_session("early", box)
     early.pending_seq = 3  # group 0-4 is gone: applies to the next picture
     ahead = _tracked_session("ahead", box)
-    ahead.pending_seq = 11  # drawn on a frame not here yet: nothing until it comes
+    ahead.pending_seq = 12  # drawn on a frame not here yet: nothing until it comes
     stream.sessions.update(drawn=drawn, early=early, ahead=ahead)
     before = REGISTRY.get_sample_value("arcf_video_replayed_pictures_total") or 0.0
     live = pipeline.take(stream, _frame("cam", 9, units[9], "h264"), 0)
     assert live is not None and tracking.run(stream, live) == []
-    broken = pipeline.take(stream, _frame("cam", 10, units[10][:40], "h264"), 0)
+    # the pilot re-draws on frame 7, which the track has answered: no frame twice, the box
+    # goes on from the next picture
+    early.pending_box, early.pending_seq, early.pending_status = box, 7, "reinitialized"
+    nxt = pipeline.take(stream, _frame("cam", 10, units[10], "h264"), 0)
+    assert nxt is not None and tracking.run(stream, nxt) == []
+    broken = pipeline.take(stream, _frame("cam", 11, units[11][:40], "h264"), 0)
     assert broken is not None and broken.code is ErrorCode.DECODE_ERROR
     assert tracking.run(stream, broken) == []
     assert [(r.frame_seq, r.status, r.message) for r in drawn.publisher.sent] == [
         (6, "initialized", None), (7, "tracking", None), (8, "tracking", None),
-        (9, "tracking", None), (10, "error", broken.text)]
+        (9, "tracking", None), (10, "tracking", None), (11, "error", broken.text)]
+    assert [(r.frame_seq, r.status) for r in early.publisher.sent] == [
+        (9, "initialized"), (10, "reinitialized"), (11, "error")]
+    assert "box of frame 7 applied to frame 10" in (early.publisher.sent[1].message or "")
     assert (REGISTRY.get_sample_value("arcf_video_replayed_pictures_total") or 0.0) == before + 3
     reference = create_tracker("arcf-h")
     plain = decode_video(units)
