@@ -119,7 +119,7 @@ class TrackingClient:
         tie_sessions: bool = True,
         max_payload: int = 8 * 1024 * 1024,
         frame_congestion: str = "drop",
-        video_history: int = 60,
+        video_history: int = 150,
     ) -> None:
         """``tie_sessions``: declare this station's liveliness token and name it in every
         ``start``, so that the service ends the sessions it started when the station is gone
@@ -137,11 +137,10 @@ class TrackingClient:
         that subscribes to the stream when a session starts gets them first and decodes from
         their keyframe, so that the box lands on the picture it was drawn on instead of
         waiting for the next keyframe: enough for a group of pictures plus the frames between
-        the pilot's click and the session's start (60: a 1.5 s group at 30 fps, with room).
-        The service takes at most ``video_queue`` and ``max_stream_fps`` of them (60 each by
-        default). It needs Zenoh's timestamping on the session, which sessions opened here
-        have; on a ``session`` given without it, a plain publisher is used, saying so. 0:
-        none kept."""
+        the pilot's click and the session's start (150: 5 s at 30 fps). The service asks
+        for at most its ``video_history`` (300), none older than 5 s. It needs Zenoh's
+        timestamping on the session, which sessions opened here have; on a ``session`` given
+        without it, a plain publisher is used, saying so. 0: none kept."""
         if frame_congestion not in ("drop", "block"):
             raise ValueError(f"frame_congestion must be 'drop' or 'block', got "
                              f"{frame_congestion!r}")

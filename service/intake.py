@@ -111,6 +111,10 @@ class Numbering:
         return (Verdict.STALE if seq <= self.last else Verdict.JUMP), 0
 
 
+#: how long after a subscription a station's history may arrive (seconds): it comes at once,
+#: in the first round trips
+HISTORY_WINDOW_S = 2.0
+
 #: a frame message's encoding, as msgpack spells a video one (a 4-byte str), looked for in the
 #: first ``_HEAD`` bytes of the message, where the schema's field order puts it before payload
 _VIDEO_MARK = re.compile(rb"\xa8encoding\xa4h26[45]")
@@ -143,7 +147,8 @@ class Inbox:
 
     def __init__(self, key: str, video_key: str | None, image_queue: int, video_queue: int,
                  rate: float, max_payload: int, wake: threading.Event, metrics: Any,
-                 clock: StageClock | None = None, max_age_s: float = 0.0) -> None:
+                 clock: StageClock | None = None, max_age_s: float = 0.0,
+                 history: int = 0) -> None:
         self.key = key
         self.video_key = video_key
         #: bounded by ``limit`` and ``max_bytes``, trimmed on every append (no ``maxlen``: its
@@ -174,6 +179,12 @@ class Inbox:
         #: frames refused here so far, by code (the loop reports them to the stream)
         self.refused: dict[ErrorCode, int] = {ErrorCode.RATE_LIMITED: 0,
                                               ErrorCode.OVERSIZED_PAYLOAD: 0}
+        #: a station's recent history, asked for at subscription (up to ``history`` samples):
+        #: it comes at once, so within ``HISTORY_WINDOW_S`` that many samples pass the rate
+        #: limit and get places in the queue beyond ``limit`` (given back as they are taken)
+        self.history = history
+        self.history_until = time.monotonic() + HISTORY_WINDOW_S
+        self.room = history
 
     def __call__(self, sample: Any) -> None:
         """A sample on the stream's frames key (a ``frame`` message)."""
@@ -204,7 +215,7 @@ class Inbox:
         # queue, nor memory (a frame message is its payload plus a few dozen bytes)
         if len(sample.payload) > self.max_payload + 1024:
             self._refuse(ErrorCode.OVERSIZED_PAYLOAD)
-        elif not self.bucket.take(time.monotonic()):
+        elif not self._history_sample() and not self.bucket.take(time.monotonic()):
             self._refuse(ErrorCode.RATE_LIMITED)
         else:
             data = sample.payload.to_bytes()
@@ -217,12 +228,20 @@ class Inbox:
                 self.frames.append((data, time.time_ns(), source, seq))
                 self.arrived = time.monotonic()
                 self._bytes += len(data)
-                while len(self.frames) > 1 and (len(self.frames) > self.limit
+                while len(self.frames) > 1 and (len(self.frames) > self.limit + self.room
                                                 or self._bytes > self.max_bytes):
                     # the oldest goes: the gap shows in the numbers, and is counted
                     self._bytes -= len(self.frames.popleft()[0])
                     self.trimmed += 1
             self.wake.set()
+
+    def _history_sample(self) -> bool:
+        """Whether a sample counts as the station's history (see ``history``)."""
+        if self.history <= 0 or time.monotonic() > self.history_until:
+            self.history = 0
+            return False
+        self.history -= 1
+        return True
 
     def _refuse(self, code: ErrorCode) -> None:
         self.metrics.ERRORS.labels(kind=code.value).inc()
@@ -241,4 +260,6 @@ class Inbox:
                     self.trimmed += 1
             item = self.frames.popleft()
             self._bytes -= len(item[0])
+            if self.room > 0:
+                self.room -= 1
             return item

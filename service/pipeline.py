@@ -34,6 +34,20 @@ def count_extent(metrics: Any, image: np.ndarray | RegionFrame) -> None:
     metrics.FRAMES_DECODED.labels(extent=extent).inc()
 
 
+def wanted_from(stream: Stream) -> int | None:
+    """The first frame any session of the stream wants a picture of, when every one of
+    them waits for the frame its box was drawn on (None: some session tracks, or may
+    start on any frame)."""
+    wanted = None
+    for s in stream.sessions.values():
+        if s.pending_seq is None or s.tracker is None or s.tracker.initialized:
+            return None
+        wanted = s.pending_seq if wanted is None else min(wanted, s.pending_seq)
+    return wanted
+
+
+
+
 class FramePipeline:
     """The frame path of one worker's streams (``metrics``: :mod:`arcf.service.metrics`)."""
 
@@ -242,7 +256,8 @@ class FramePipeline:
         while len(times) > 2 * self.settings.video_queue:
             del times[next(iter(times))]
         t0, c0 = time.perf_counter(), time.thread_time()
-        out = stream.decoder.decode(seq, data, (capture_ts_ns, received_ns))
+        out = stream.decoder.decode(seq, data, (capture_ts_ns, received_ns),
+                                    wanted_from=wanted_from(stream))
         decode_s = time.perf_counter() - t0
         c0 = self.clock.since("decode", c0)
         self.metrics.DECODE.observe(decode_s)

@@ -83,7 +83,9 @@ class ServiceSettings:
         "on, at most 32 MiB): a box drawn on a picture the worker has decoded already (the "
         "pilot's view lags the stream) is applied to that very picture, decoded again from "
         "the keyframe, and the session catches up to live; a longer group is not kept, and "
-        "its box applies to the next picture, saying so. 0: off"))
+        "its box applies to the next picture, saying so. Also the most a worker asks a "
+        "station for of its recent video when it subscribes to a stream (none older than "
+        "5 s; the SDK keeps 150). 0: off"))
     video_key: str = field(default="video/{stream}/stream", metadata=_about(
         "where a stream's video also arrives as CDR foxglove.CompressedVideo access units "
         "(BlueOS's MAVLink camera manager's convention); '{stream}' is the stream id; empty: "

@@ -392,15 +392,18 @@ class Worker:
         video_key = cfg.video_key.replace("{stream}", stream_id) if cfg.video_key else None
         inbox = Inbox(self.keys.frames(stream_id), video_key, cfg.frame_queue, cfg.video_queue,
                       cfg.max_stream_fps, cfg.max_payload, self.wake, self.metrics, self.clock,
-                      cfg.max_frame_age_ms / 1e3)
-        # advanced: the stream's recent history comes first where its station keeps it (the
-        # SDK's video publishers), so that decoding starts at the keyframe before the
-        # picture a box was drawn on; plain publishers' samples arrive as to any subscriber
-        sub = self.zenoh_ext.declare_advanced_subscriber(
-            self.session, self.keys.frames(stream_id), inbox,
-            history=self.zenoh_ext.HistoryConfig(
-                max_samples=max(1, min(cfg.video_queue, int(cfg.max_stream_fps))),
-                max_age=HISTORY_MAX_AGE_S))
+                      cfg.max_frame_age_ms / 1e3, history=cfg.video_history)
+        if cfg.video_history:
+            # advanced: the stream's recent history comes first where its station keeps it
+            # (the SDK's video publishers), so that decoding starts at the keyframe before
+            # the picture a box was drawn on; plain publishers' samples arrive as to any
+            # subscriber
+            sub = self.zenoh_ext.declare_advanced_subscriber(
+                self.session, self.keys.frames(stream_id), inbox,
+                history=self.zenoh_ext.HistoryConfig(max_samples=cfg.video_history,
+                                                     max_age=HISTORY_MAX_AGE_S))
+        else:
+            sub = self.session.declare_subscriber(self.keys.frames(stream_id), inbox)
         errors = self.session.declare_publisher(
             self.keys.errors(stream_id), congestion_control=self.zenoh.CongestionControl.DROP)
         stream = Stream(stream_id, sub, inbox, errors,

@@ -62,6 +62,11 @@ _FFMPEG_ERROR = 16
 _CONCEALED = "concealing"
 
 
+#: units kept undecoded at most while a decoder waits for the wanted one (a group longer than
+#: that is dropped, and the next keyframe starts again)
+MAX_DEFERRED_UNITS = 1000
+
+
 class Outcome(str, Enum):
     """What one access unit gave."""
 
@@ -157,6 +162,9 @@ class StreamDecoder:
         self._params: dict[int, bytes] = {}
         self._next_seq: int | None = None
         self.group = GroupOfPictures(history_units, history_bytes)
+        #: units kept undecoded before the wanted one, from their keyframe on (``decode``)
+        self._deferred: list[Unit] = []
+        self._deferred_bytes = 0
         #: counts by outcome, and resynchronisations by cause
         self.counts: dict[str, int] = {}
         # decoding errors and concealment notices must reach the capture (outside it, PyAV
@@ -180,9 +188,55 @@ class StreamDecoder:
         self._count(f"resync_{cause}")
         return Decoded(Outcome.RESYNC, reason=reason, cause=cause)
 
-    def decode(self, seq: int, data: bytes, tag: Any = None) -> Decoded:
+    def decode(self, seq: int, data: bytes, tag: Any = None, *,
+               wanted_from: int | None = None) -> Decoded:
         """Decode the access unit numbered ``seq`` of the stream (``tag``: kept with it for
-        :meth:`replay`)."""
+        :meth:`replay`).
+
+        ``wanted_from``: no picture before unit ``wanted_from`` is wanted (every session of
+        the stream waits for that one). Until the decoder has a picture, units before it are
+        only kept, from their keyframe on, and decoded with the first unit at or after it
+        (``NO_FRAME`` meanwhile): a worker that receives a station's recent history decodes
+        the group its picture is in, not every group before."""
+        if self._ctx is None and wanted_from is not None and seq < wanted_from:
+            return self._defer(seq, data, tag)
+        if self._deferred:
+            held, self._deferred, self._deferred_bytes = self._deferred, [], 0
+            self._next_seq = held[0].seq
+            for unit in held:  # the group's keyframe and its units since, in order
+                self._decode(unit.seq, unit.data, unit.tag)
+        return self._decode(seq, data, tag)
+
+    def _defer(self, seq: int, data: bytes, tag: Any) -> Decoded:
+        """Keep a unit before the wanted one (see :meth:`decode`), without decoding it."""
+        gap = self._next_seq is not None and seq != self._next_seq
+        self._next_seq = seq + 1
+        try:
+            units = nal_units(data, self.codec)
+        except ValueError as exc:
+            units, why = [], f"not a camera's access unit: {exc}"
+        else:
+            why = "not an Annex B access unit (no start code)"
+        if not units:
+            self._deferred, self._deferred_bytes = [], 0
+            return self._resync("corrupt", why)
+        for kind, unit in units:
+            if kind in PARAMETER_TYPES[self.codec]:
+                self._params[kind] = unit
+        if any(kind in KEYFRAME_TYPES[self.codec] for kind, _ in units):
+            self._deferred, self._deferred_bytes = [], 0
+        elif gap or not self._deferred:  # a broken chain, or none yet: nothing to keep
+            self._deferred, self._deferred_bytes = [], 0
+            self._count("deferred")
+            return Decoded(Outcome.NO_FRAME)
+        self._deferred.append(Unit(seq, data, tag))
+        self._deferred_bytes += len(data)
+        if len(self._deferred) > MAX_DEFERRED_UNITS or self._deferred_bytes > self.group.max_bytes:
+            self._deferred, self._deferred_bytes = [], 0  # the next keyframe starts again
+        self._count("deferred")
+        return Decoded(Outcome.NO_FRAME)
+
+    def _decode(self, seq: int, data: bytes, tag: Any) -> Decoded:
         gap = self._next_seq is not None and seq != self._next_seq
         expected, self._next_seq = self._next_seq, seq + 1
         try:

@@ -8,7 +8,7 @@ import time
 from collections import deque
 from types import SimpleNamespace
 
-from arcf.schemas import Frame, decode, encode
+from arcf.schemas import ErrorCode, Frame, decode, encode
 from arcf.service.intake import Inbox
 
 KEY = "arcf/v1/streams/cam/frames"
@@ -96,3 +96,26 @@ def test_a_flood_of_huge_units_stays_within_the_byte_cap() -> None:
     while box.pop() is not None:
         pass
     assert box._bytes == 0
+
+
+def test_a_stations_history_passes_the_rate_limit_and_gets_room_once() -> None:
+    """At subscription a worker asks for a station's recent units (``history``): they come at
+    once, so that many pass the rate limit and get places beyond ``video_queue``, given back
+    as the loop takes them; the next burst meets the limits again."""
+    box = Inbox(KEY, VIDEO_KEY, 2, 60, 30.0, 1 << 20, threading.Event(), METRICS,
+                history=150)
+    for i in range(150):
+        put(box, KEY, frame(i, "h264"))
+    assert len(box.frames) == 150 and box.refused[ErrorCode.RATE_LIMITED] == 0
+    while box.pop() is not None:
+        pass
+    assert box.room == 0
+    for i in range(150, 250):  # a second burst: 30 frames/s allows a second's worth
+        put(box, KEY, frame(i, "h264"))
+    assert len(box.frames) == 30 and box.refused[ErrorCode.RATE_LIMITED] == 70
+    late = Inbox(KEY, VIDEO_KEY, 2, 60, 30.0, 1 << 20, threading.Event(), METRICS,
+                 history=150)
+    late.history_until = time.monotonic() - 1  # the history's window has passed
+    for i in range(100):
+        put(late, KEY, frame(i, "h264"))
+    assert late.refused[ErrorCode.RATE_LIMITED] == 70

@@ -201,3 +201,26 @@ def test_the_kept_group_is_bounded_and_dropped_when_the_chain_breaks(
     none = StreamDecoder("h264")  # the default: nothing kept
     none.decode(0, h264[0])
     assert none.group.units == [] and list(none.replay(0, 0)) == []
+
+
+def test_units_before_the_wanted_one_are_kept_from_their_keyframe_not_decoded(
+        h264: list[bytes]) -> None:
+    """Every session waits for frame 23 (a station's history came first): units before it
+    are only kept, from their last keyframe on (20), and decoded with unit 23, which gives
+    the picture a decoder that saw everything gives; nothing of groups 0 and 10 is
+    decoded."""
+    dec = StreamDecoder("h264", history_units=3 * GOP)
+    out = [dec.decode(i, u, tag=i, wanted_from=23) for i, u in enumerate(h264[:23])]
+    assert {o.outcome for o in out} == {Outcome.NO_FRAME}
+    assert dec.counts == {"deferred": 23}
+    got = dec.decode(23, h264[23], tag=23, wanted_from=23)
+    assert got.outcome is Outcome.FRAME and got.seq == 23
+    np.testing.assert_array_equal(got.image, plain(h264)[23])
+    assert dec.counts["frame"] == 4  # 20, 21, 22 and 23
+    assert [u.seq for u in dec.group.units] == [20, 21, 22, 23]
+    assert [d.seq for d, _ in dec.replay(21, 22)] == [21, 22]  # the kept group replays
+    # a unit lost while waiting: what was kept is dropped, the next keyframe starts again
+    lossy = StreamDecoder("h264", history_units=3 * GOP)
+    for i in (*range(12), *range(13, 15)):
+        lossy.decode(i, h264[i], wanted_from=15)
+    assert lossy.decode(15, h264[15], wanted_from=15).outcome is Outcome.WAITING
