@@ -24,10 +24,10 @@ import time
 from pathlib import Path
 from typing import Any
 
-import cv2
 from _common import parser, spread, write_trials  # beside this script
 
 from arcf.client import TrackingClient
+from arcf.client.media.images import decode_compressed
 from arcf.eval import load_dataset
 from arcf.loadtools.procs import ServiceProcess
 from arcf.loadtools.system import machine
@@ -73,6 +73,7 @@ def trial(service: ServiceProcess, stream: str, units: list[bytes], boxes: list[
                    what="a result about a live frame")
         first_t, first = mine()[0]
         live_t, live = next((t, r) for t, r in mine() if r.frame_seq > last_sent)
+        assert ack.session_id is not None
         station.stop(ack.session_id)
         return {
             "gop": gop, "phase": phase, "clicked": clicked,
@@ -95,7 +96,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", type=Path, help="write every trial's figures here")
     args = ap.parse_args(argv)
     (sequence,) = load_dataset("uav123_10fps", sequences=[args.sequence])
-    images = [cv2.imread(str(p)) for p in sequence.frames]
+    images = [decode_compressed(p.read_bytes()) for p in sequence.frames]
     gops = [int(g) for g in args.gops.split(",") if g]
     trials = []
     service = ServiceProcess(workers=1)

@@ -393,6 +393,7 @@ class Worker:
         inbox = Inbox(self.keys.frames(stream_id), video_key, cfg.frame_queue, cfg.video_queue,
                       cfg.max_stream_fps, cfg.max_payload, self.wake, self.metrics, self.clock,
                       cfg.max_frame_age_ms / 1e3, history=cfg.video_history)
+        sub: Any
         if cfg.video_history:
             # advanced: the stream's recent history comes first where its station keeps it
             # (the SDK's video publishers), so that decoding starts at the keyframe before
