@@ -114,19 +114,27 @@ class Unit:
 
 
 class GroupOfPictures:
-    """The units since the last keyframe, in order: what it takes to decode any picture of the
-    group again. Bounded by ``max_units`` and ``max_bytes``: a group longer than that is
-    forgotten until the next keyframe (a replay then finds nothing)."""
+    """The units since the last keyframe, and the group before it, in order: what it takes to
+    decode any picture of the two again (a box drawn on the last picture before a keyframe
+    comes after that keyframe). Bounded by ``max_units`` and ``max_bytes`` for the two: the
+    older group goes first, and a current group longer than that is forgotten until the next
+    keyframe (a replay then finds nothing)."""
 
     def __init__(self, max_units: int, max_bytes: int) -> None:
         self.max_units, self.max_bytes = max_units, max_bytes
         self.units: list[Unit] = []
+        self.previous: list[Unit] = []
         self._bytes = 0
+        self._previous_bytes = 0
         #: the group outgrew the bounds (or broke): nothing is kept until the next keyframe
         self.overflowed = True
 
     def start(self, unit: Unit) -> None:
-        """A keyframe: a new group."""
+        """A keyframe: a new group, the current one kept as the previous."""
+        if self.overflowed:
+            self.previous, self._previous_bytes = [], 0
+        else:
+            self.previous, self._previous_bytes = self.units, self._bytes
         self.units, self._bytes, self.overflowed = [], 0, False
         self.add(unit)
 
@@ -135,15 +143,26 @@ class GroupOfPictures:
             return
         self.units.append(unit)
         self._bytes += len(unit.data)
+        if self.previous and (len(self.units) + len(self.previous) > self.max_units
+                              or self._bytes + self._previous_bytes > self.max_bytes):
+            self.previous, self._previous_bytes = [], 0
         if len(self.units) > self.max_units or self._bytes > self.max_bytes:
             self.forget()
 
     def forget(self) -> None:
-        self.units, self._bytes, self.overflowed = [], 0, True
+        self.units, self.previous, self.overflowed = [], [], True
+        self._bytes = self._previous_bytes = 0
 
     def covers(self, seq: int) -> bool:
         """Whether the picture of unit ``seq`` can be decoded again from the kept units."""
-        return bool(self.units) and self.units[0].seq <= seq <= self.units[-1].seq
+        first = self.previous or self.units
+        return bool(self.units) and first[0].seq <= seq <= self.units[-1].seq
+
+    def since_keyframe_of(self, seq: int) -> list[Unit]:
+        """The units from the keyframe of the group that holds ``seq`` to the newest."""
+        if self.units and seq >= self.units[0].seq:
+            return list(self.units)
+        return [*self.previous, *self.units]
 
 
 class StreamDecoder:
@@ -315,7 +334,7 @@ class StreamDecoder:
         does not decode cleanly (none of its successors could be trusted)."""
         if not self.group.covers(first):
             return
-        units = [u for u in self.group.units if u.seq <= last]
+        units = [u for u in self.group.since_keyframe_of(first) if u.seq <= last]
         tags = {u.seq: u.tag for u in units}
         again = StreamDecoder(self.codec, self.max_pixels)
         for unit in units:

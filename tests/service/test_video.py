@@ -166,23 +166,30 @@ def test_pictures_are_converted_only_when_asked_for(h264: list[bytes]) -> None:
     np.testing.assert_array_equal(first, plain(h264[:1])[0])
 
 
-def test_a_picture_of_the_current_group_decodes_again_as_it_did_live(h264: list[bytes]) -> None:
-    """The group since the last keyframe is kept: any of its pictures decodes again, pixel for
-    pixel as the live decoder gave it, each with its unit's tag; a keyframe that came without
-    its parameter sets still starts a group that decodes on its own."""
+def test_a_picture_of_the_last_two_groups_decodes_again_as_it_did_live(
+        h264: list[bytes]) -> None:
+    """The group since the last keyframe and the one before are kept: any of their pictures
+    decodes again, pixel for pixel as the live decoder gave it, each with its unit's tag
+    (a box drawn on the last picture before a keyframe comes after it); a keyframe that
+    came without its parameter sets still starts a group that decodes on its own."""
     bare = b"".join(u for k, u in nal_units(h264[GOP], "h264") if k not in (7, 8))
     units = [*h264[:GOP], bare, *h264[GOP + 1:]]
     dec = StreamDecoder("h264", history_units=3 * GOP)
     live = [dec.decode(i, u, tag=f"unit {i}") for i, u in enumerate(units[:2 * GOP - 2])]
     assert [u.seq for u in dec.group.units] == list(range(GOP, 2 * GOP - 2))
-    assert not dec.group.covers(GOP - 1) and dec.group.covers(2 * GOP - 3)
+    assert dec.group.covers(0) and dec.group.covers(2 * GOP - 3)
     again = list(dec.replay(GOP + 3, GOP + 6))
     assert [(d.seq, tag) for d, tag in again] == [(i, f"unit {i}") for i in range(13, 17)]
-    for d, _ in again:
+    across = list(dec.replay(GOP - 2, GOP + 1))  # the last two of a group, the next two
+    assert [d.seq for d, _ in again + across] == [13, 14, 15, 16, 8, 9, 10, 11]
+    for d, _ in again + across:
         np.testing.assert_array_equal(d.image, live[d.seq or 0].image)
-    assert list(dec.replay(GOP - 2, GOP + 1)) == []  # before the kept group: nothing
     # the live decoder's state is its own: it goes on where it was
     assert dec.decode(2 * GOP - 2, units[2 * GOP - 2]).outcome is Outcome.FRAME
+    for i in range(2 * GOP - 1, 2 * GOP + 2):  # a third group: the first one goes
+        dec.decode(i, units[i])
+    assert not dec.group.covers(GOP - 1) and dec.group.covers(GOP)
+    assert list(dec.replay(GOP - 2, GOP + 1)) == []  # before the kept groups: nothing
 
 
 def test_the_kept_group_is_bounded_and_dropped_when_the_chain_breaks(
@@ -193,6 +200,10 @@ def test_the_kept_group_is_bounded_and_dropped_when_the_chain_breaks(
     assert not short.group.covers(0) and short.group.units == []  # outgrew: none kept
     short.decode(GOP, h264[GOP])
     assert short.group.covers(GOP)  # the next keyframe starts a group again
+    roomy = StreamDecoder("h264", history_units=GOP + 3)
+    for i, u in enumerate(h264[:GOP + 4]):
+        roomy.decode(i, u)
+    assert not roomy.group.covers(GOP - 1) and roomy.group.covers(GOP)  # the older went
     broken = StreamDecoder("h264", history_units=3 * GOP)
     for i, u in enumerate(h264[:5]):
         broken.decode(i, u)

@@ -354,56 +354,56 @@ def test_a_session_over_its_budget_is_returned_to_end(wakeboard7) -> None:  # ty
 
 def test_a_box_drawn_on_a_passed_video_picture_starts_there_and_catches_up(
         pipeline: FramePipeline, wakeboard7) -> None:  # type: ignore[no-untyped-def]
-    """The pilot drew on frame 6 of an H.264 stream; the worker has decoded up to frame 9
-    when the box comes. Frame 6 is decoded again from its group's keyframe (5), the box
-    applied there, and 7, 8 and 9 tracked: the boxes a tracker started on frame 6 of the
-    plainly decoded video gives. A box drawn before the kept group (frame 3) applies to the
-    next picture, saying so, as does a box re-drawn on a frame the track has answered (no
-    frame is answered twice); and no session gets a result before the frame it was drawn
-    on."""
+    """Keyframes every 5 frames; the worker has decoded up to frame 13 when the boxes come.
+    A box drawn on frame 11 (this group) or 8 (the group before) is applied to that very
+    picture, decoded again from its group's keyframe, and the session tracks every picture
+    since: the boxes a tracker started there on the plainly decoded video gives. A box
+    drawn before the two kept groups (frame 3) applies to the next picture, saying so, as
+    does a box re-drawn on a frame the track has answered (no frame is answered twice); and
+    no session gets a result before the frame it was drawn on."""
     from arcf import create_tracker
     from arcf.loadtools.video import decode_video, encode_video
     from arcf.service.tracking import Tracking
 
-    images = [cv2.imread(str(p)) for p in wakeboard7.frames[:12]]
+    images = [cv2.imread(str(p)) for p in wakeboard7.frames[:17]]
     units = encode_video(images, "h264", gop=5)
-    box = tuple(float(v) for v in wakeboard7.groundtruth[6])
     stream = _real_stream()
     tracking = Tracking(metrics, StageClock(metrics.STAGE_CPU), session_budget_s=10.0)
-    for i in range(9):
+    for i in range(14):
         picture = pipeline.take(stream, _frame("cam", i, units[i], "h264"), 0)
         assert picture is not None and tracking.run(stream, picture) == []
-    drawn = _tracked_session("drawn", box)
-    drawn.pending_seq = 6
-    early = _tracked_session("early", box)
-    early.pending_seq = 3  # group 0-4 is gone: applies to the next picture
-    ahead = _tracked_session("ahead", box)
-    ahead.pending_seq = 12  # drawn on a frame not here yet: nothing until it comes
-    stream.sessions.update(drawn=drawn, early=early, ahead=ahead)
+    boxes = {i: tuple(float(v) for v in wakeboard7.groundtruth[i]) for i in (3, 8, 11, 17)}
+    sessions = {}
+    for name, drawn in (("drawn", 11), ("across", 8), ("early", 3), ("ahead", 17)):
+        sessions[name] = _tracked_session(name, boxes[drawn])
+        sessions[name].pending_seq = drawn
+    stream.sessions.update(sessions)
     before = REGISTRY.get_sample_value("arcf_video_replayed_pictures_total") or 0.0
-    live = pipeline.take(stream, _frame("cam", 9, units[9], "h264"), 0)
+    live = pipeline.take(stream, _frame("cam", 14, units[14], "h264"), 0)
     assert live is not None and tracking.run(stream, live) == []
-    # the pilot re-draws on frame 7, which the track has answered: no frame twice, the box
-    # goes on from the next picture
-    early.pending_box, early.pending_seq, early.pending_status = box, 7, "reinitialized"
-    nxt = pipeline.take(stream, _frame("cam", 10, units[10], "h264"), 0)
+    assert (REGISTRY.get_sample_value("arcf_video_replayed_pictures_total") or 0.0) == (
+        before + 3 + 6)  # 11-13 and 8-13
+    # the pilot re-draws on frame 12, which the track has answered: it goes on from 15
+    early = sessions["early"]
+    early.pending_box, early.pending_seq, early.pending_status = boxes[11], 12, "reinitialized"
+    nxt = pipeline.take(stream, _frame("cam", 15, units[15], "h264"), 0)
     assert nxt is not None and tracking.run(stream, nxt) == []
-    broken = pipeline.take(stream, _frame("cam", 11, units[11][:40], "h264"), 0)
+    broken = pipeline.take(stream, _frame("cam", 16, units[16][:40], "h264"), 0)
     assert broken is not None and broken.code is ErrorCode.DECODE_ERROR
     assert tracking.run(stream, broken) == []
-    assert [(r.frame_seq, r.status, r.message) for r in drawn.publisher.sent] == [
-        (6, "initialized", None), (7, "tracking", None), (8, "tracking", None),
-        (9, "tracking", None), (10, "tracking", None), (11, "error", broken.text)]
-    assert [(r.frame_seq, r.status) for r in early.publisher.sent] == [
-        (9, "initialized"), (10, "reinitialized"), (11, "error")]
-    assert "box of frame 7 applied to frame 10" in (early.publisher.sent[1].message or "")
-    assert (REGISTRY.get_sample_value("arcf_video_replayed_pictures_total") or 0.0) == before + 3
-    reference = create_tracker("arcf-h")
-    plain = decode_video(units)
-    want = [reference.init(plain[6], box).box] + [reference.update(plain[i]).box
-                                                  for i in (7, 8, 9)]
-    assert [tuple(r.box) for r in drawn.publisher.sent[:4]] == [tuple(b) for b in want]
-    assert [(r.frame_seq, r.status, r.message) for r in early.publisher.sent[:1]] == [
-        (9, "initialized", "box of frame 3 applied to frame 9, the first this session saw "
-                           "at or after it")]
-    assert ahead.publisher.sent == []
+    sent = {name: s.publisher.sent for name, s in sessions.items()}
+    for name, drawn in (("drawn", 11), ("across", 8)):
+        assert [(r.frame_seq, r.status, r.message) for r in sent[name]] == [
+            (drawn, "initialized", None),
+            *((i, "tracking", None) for i in range(drawn + 1, 16)), (16, "error", broken.text)]
+        reference = create_tracker("arcf-h")
+        plain = decode_video(units)
+        want = [reference.init(plain[drawn], boxes[drawn]).box] + [
+            reference.update(plain[i]).box for i in range(drawn + 1, 16)]
+        assert [tuple(r.box) for r in sent[name][:-1]] == [tuple(b) for b in want], name
+    assert [(r.frame_seq, r.status) for r in sent["early"]] == [
+        (14, "initialized"), (15, "reinitialized"), (16, "error")]
+    assert sent["early"][0].message == ("box of frame 3 applied to frame 14, the first this "
+                                        "session saw at or after it")
+    assert "box of frame 12 applied to frame 15" in (sent["early"][1].message or "")
+    assert sent["ahead"] == []
