@@ -79,11 +79,12 @@ class ServiceSettings:
         "the count, a stream's queue holds at most the larger of 32 MiB and two frames of "
         "max_payload"))
     video_history: int = field(default=300, metadata=_about(
-        "access units of a video stream's current group of pictures kept (from its keyframe "
-        "on, at most 32 MiB): a box drawn on a picture the worker has decoded already (the "
-        "pilot's view lags the stream) is applied to that very picture, decoded again from "
-        "the keyframe, and the session catches up to live; a longer group is not kept, and "
-        "its box applies to the next picture, saying so. Also the most a worker asks a "
+        "access units of a video stream's current group of pictures and the one before, "
+        "kept from their keyframes on (at most 32 MiB): a box drawn on a picture the worker "
+        "has decoded already (the pilot's view lags the stream) is applied to that very "
+        "picture, decoded again from its keyframe, and the session catches up to live; a "
+        "longer group is not kept, and its box applies to the next picture, saying so. "
+        "Also the most a worker asks a "
         "station for of its recent video when it subscribes to a stream (none older than "
         "5 s; the SDK keeps 150). 0: off"))
     video_key: str = field(default="video/{stream}/stream", metadata=_about(
