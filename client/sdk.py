@@ -138,7 +138,7 @@ class TrackingClient:
         their keyframe, so that the box lands on the picture it was drawn on instead of
         waiting for the next keyframe: enough for a group of pictures plus the frames between
         the pilot's click and the session's start (150: 5 s at 30 fps). The service asks
-        for at most its ``video_history`` (300), none older than 5 s. It needs Zenoh's
+        for at most its ``video_history`` (300), none older than 10 s. It needs Zenoh's
         timestamping on the session, which sessions opened here have; on a ``session`` given
         without it, a plain publisher is used, saying so. 0: none kept."""
         if frame_congestion not in ("drop", "block"):

@@ -112,8 +112,8 @@ class Numbering:
 
 
 #: how long after a subscription a station's history may arrive (seconds): it comes at once,
-#: in the first round trips
-HISTORY_WINDOW_S = 2.0
+#: in the first round trips, but a loaded machine may take seconds to deliver it
+HISTORY_WINDOW_S = 10.0
 
 #: a frame message's encoding, as msgpack spells a video one (a 4-byte str), looked for in the
 #: first ``_HEAD`` bytes of the message, where the schema's field order puts it before payload

@@ -86,7 +86,7 @@ class ServiceSettings:
         "longer group is not kept, and its box applies to the next picture, saying so. "
         "Also the most a worker asks a "
         "station for of its recent video when it subscribes to a stream (none older than "
-        "5 s; the SDK keeps 150). 0: off"))
+        "10 s; the SDK keeps 150). 0: off"))
     video_key: str = field(default="video/{stream}/stream", metadata=_about(
         "where a stream's video also arrives as CDR foxglove.CompressedVideo access units "
         "(BlueOS's MAVLink camera manager's convention); '{stream}' is the stream id; empty: "

@@ -63,7 +63,7 @@ log = logging.getLogger(__name__)
 #: a stream's history older than this (seconds) is not asked for when a worker subscribes:
 #: a box is drawn on what the pilot sees now, and a station silent for longer has restarted
 #: or moved on
-HISTORY_MAX_AGE_S = 5.0
+HISTORY_MAX_AGE_S = 10.0
 
 
 class _CommandRefused(Exception):
