@@ -135,7 +135,7 @@ def test_only_authorised_stations_track(tmp_path: Path) -> None:
                     while got[-1].status.value == "stale":  # the wait above: no frames
                         got[-1] = results.get(timeout=10)
                 # the stream is announced to stations (the live view's list); the intruder's
-                # announcement reaches nobody, and it sees no one's but its own
+                # announcement reaches nobody, and it sees no one's
                 def announced(c: TrackingClient) -> set[str]:
                     return {str(r.ok.key_expr) for r in c.session.liveliness().get(
                         c.keys.all_publisher_tokens(), timeout=2.0) if r.ok is not None}
@@ -146,7 +146,9 @@ def test_only_authorised_stations_track(tmp_path: Path) -> None:
                     assert view.streams() == ["cam"]  # another station's, through the router
                     assert announced(view) == {good.keys.publisher_token("cam", good.client_id)}
                 viewer.close()
-                assert announced(bad) == {bad.keys.publisher_token("cam", bad.client_id)}
+                # nobody else's (its own comes back from its own session, if in time: a
+                # loaded machine's 2 s can pass without it)
+                assert announced(bad) <= {bad.keys.publisher_token("cam", bad.client_id)}
                 forged = got[-1].model_copy(update={"frame_seq": 999})
                 intruder.put(good.keys.results("cam", ack.session_id), encode(forged))
                 time.sleep(0.5)  # the window in which a forged result would arrive (none may)
