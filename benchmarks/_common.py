@@ -11,7 +11,9 @@ from __future__ import annotations
 import argparse
 import json
 import statistics
-from collections.abc import Sequence
+import sys
+import time
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -43,3 +45,36 @@ def write_trials(path: Path | None, machine: dict[str, Any], trials: list[Any]) 
     """Every trial's figures, with the machine they ran on, as JSON at ``path`` (if any)."""
     if path is not None:
         path.write_text(json.dumps({"machine": machine, "trials": trials}, indent=2))
+
+
+def header(script: str, argv: Sequence[str] | None, machine: dict[str, Any],
+           details: str) -> None:
+    """Print what a benchmark's table comes from: its command line (``argv``: the options
+    given, None for the process's), then the date, the machine and ``details``."""
+    given = " ".join(sys.argv[1:] if argv is None else argv)
+    print(f"`python benchmarks/{script} {given}`".replace(" `", "`"))
+    print(f"{time.strftime('%Y-%m-%d')}, {machine['cpu']} ({machine['nproc']} cores), "
+          f"{machine['software']}; {details}\n")
+
+
+def table(head: Sequence[str], rows: Iterable[Sequence[str]], note: str | None = None) -> None:
+    """Print a Markdown table, then ``note`` (what its columns mean) under it."""
+    print("| " + " | ".join(head) + " |")
+    print("|" + " --- |" * len(head))
+    for row in rows:
+        print("| " + " | ".join(row) + " |")
+    if note:
+        print(f"\n{note}")
+
+
+def report(script: str, argv: Sequence[str] | None, details: str, head: Sequence[str],
+           rows: Iterable[Sequence[str]], note: str | None, json_path: Path | None,
+           trials: list[Any]) -> None:
+    """A benchmark's whole output: :func:`header` on this machine, its :func:`table`, and
+    every trial's figures at ``json_path`` (:func:`write_trials`)."""
+    from arcf.loadtools.system import machine
+
+    m = machine()
+    header(script, argv, m, details)
+    table(head, rows, note)
+    write_trials(json_path, m, trials)

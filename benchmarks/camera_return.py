@@ -24,7 +24,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from _common import parser, spread, write_trials  # beside this script
+from _common import parser, report, spread  # beside this script
 
 from arcf.adapters.ingest import Ingest, parse_source
 from arcf.client import TrackingClient
@@ -32,9 +32,12 @@ from arcf.client.media.images import decode_compressed
 from arcf.eval import load_dataset
 from arcf.loadtools.procs import ServiceProcess
 from arcf.loadtools.senders import VideoSender, free_rtp_port
-from arcf.loadtools.system import machine
 from arcf.loadtools.video import encode_video
 from arcf.loadtools.waiting import wait_until
+
+#: what the table's middle column measures
+FIRST_START = ("A first start: the ingest already waiting on the port when the camera starts "
+               "(FFmpeg's probing of the stream and the network; no back-off).")
 
 
 def trial(service: ServiceProcess, k: int, units: list[bytes], size: tuple[int, int],
@@ -97,21 +100,15 @@ def main(argv: list[str] | None = None) -> int:
         trials = [trial(service, k, units, size, args.down_s) for k in range(args.trials)]
     finally:
         service.stop()
-    m = machine()
-    print(f"`python benchmarks/camera_return.py {' '.join(argv or sys.argv[1:])}`"
-          .replace(" `", "`"))
-    print(f"{time.strftime('%Y-%m-%d')}, {m['cpu']} ({m['nproc']} cores), {m['software']}; "
-          f"{args.trials} trials, RTP 1280×720 H.264 at 30 fps, keyframes every {args.gop}, "
-          f"the camera away {args.down_s:g} s\n")
-    print("| camera back → its first frame at the station | a first start, the same way "
-          "| source reopened while away |")
-    print("| --- | --- | --- |")
-    print(f"| {spread([1e3 * t['back_s'] for t in trials], unit=' ms')} | "
-          f"{spread([1e3 * t['start_s'] for t in trials], unit=' ms')} | "
-          f"{spread([t['reopened'] for t in trials])} |")
-    print("\nA first start: the ingest already waiting on the port when the camera starts "
-          "(FFmpeg's probing of the stream and the network; no back-off).")
-    write_trials(args.json, m, trials)
+    report("camera_return.py", argv,
+           f"{args.trials} trials, RTP 1280×720 H.264 at 30 fps, keyframes every "
+           f"{args.gop}, the camera away {args.down_s:g} s",
+           ["camera back → its first frame at the station", "a first start, the same way",
+            "source reopened while away"],
+           [[spread([1e3 * t["back_s"] for t in trials], unit=" ms"),
+             spread([1e3 * t["start_s"] for t in trials], unit=" ms"),
+             spread([t["reopened"] for t in trials])]],
+           FIRST_START, args.json, trials)
     return 0
 
 

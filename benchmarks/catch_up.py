@@ -25,13 +25,12 @@ import time
 from pathlib import Path
 from typing import Any
 
-from _common import parser, spread, write_trials  # beside this script
+from _common import parser, report, spread  # beside this script
 
 from arcf.client import TrackingClient
 from arcf.client.media.images import decode_compressed
 from arcf.eval import load_dataset
 from arcf.loadtools.procs import ServiceProcess
-from arcf.loadtools.system import machine
 from arcf.loadtools.video import encode_video
 from arcf.loadtools.waiting import wait_until
 
@@ -121,30 +120,28 @@ def main(argv: list[str] | None = None) -> int:
                                         args.fps))
     finally:
         service.stop()
-    m = machine()
-    print(f"`python benchmarks/catch_up.py {' '.join(argv or sys.argv[1:])}`".replace(" `", "`"))
-    print(f"{time.strftime('%Y-%m-%d')}, {m['cpu']} ({m['nproc']} cores), {m['software']}; "
-          f"{args.trials} trials per row, {args.preset} on {args.sequence} as 1280×720 H.264 "
-          f"at {args.fps:g} fps\n")
-    print("| group | clicked on | first box on the clicked frame | first box | live again "
-          "| lag then | caught up |")
-    print("| --- | --- | --- | --- | --- | --- | --- |")
+    rows = []
     for gop in gops:
         for phase in PHASES:
-            rows = [t for t in trials if t["gop"] == gop and t["phase"] == phase]
+            mine = [t for t in trials if t["gop"] == gop and t["phase"] == phase]
             on = sum(t["first_frame"] == t["clicked"] and t["first_status"] == "initialized"
-                     for t in rows)
+                     for t in mine)
 
-            def ms(key: str, rows: list[dict[str, Any]] = rows) -> str:
+            def ms(key: str, rows: list[dict[str, Any]] = mine) -> str:
                 return spread([1e3 * t[key] for t in rows], unit=" ms")
 
-            where = "the frame before a keyframe" if phase == "last" else "mid-group"
-            print(f"| {gop} | {where} | {on} of {len(rows)} | {ms('first_s')} | "
-                  f"{ms('live_s')} | {ms('live_lag_s')} | {ms('caught_up_s')} |")
-    print("\nTimes from the start request. Live again: the first result about a frame sent "
-          "after it, and how long after its frame it came; caught up: the first result "
-          f"within {1e3 * CAUGHT_UP_S:.0f} ms of its frame.")
-    write_trials(args.json, m, trials)
+            rows.append([str(gop), "the frame before a keyframe" if phase == "last"
+                         else "mid-group", f"{on} of {len(mine)}", ms("first_s"), ms("live_s"),
+                         ms("live_lag_s"), ms("caught_up_s")])
+    report("catch_up.py", argv,
+           f"{args.trials} trials per row, {args.preset} on {args.sequence} as 1280×720 "
+           f"H.264 at {args.fps:g} fps",
+           ["group", "clicked on", "first box on the clicked frame", "first box",
+            "live again", "lag then", "caught up"], rows,
+           "Times from the start request. Live again: the first result about a frame sent "
+           "after it, and how long after its frame it came; caught up: the first result "
+           f"within {1e3 * CAUGHT_UP_S:.0f} ms of its frame.",
+           args.json, trials)
     return 0
 
 

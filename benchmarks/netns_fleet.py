@@ -15,10 +15,9 @@ own streams again and ``--phase-s`` more (:mod:`arcf.loadtools.netfleet`). Zenoh
 from __future__ import annotations
 
 import sys
-import time
 from pathlib import Path
 
-from _common import parser, spread, write_trials  # beside this script
+from _common import header, parser, spread, write_trials  # beside this script
 
 from arcf.loadtools import netfleet
 from arcf.loadtools.netlab import unavailable
@@ -39,11 +38,9 @@ def main(argv: list[str] | None = None) -> int:
     trials = [netfleet.run(phase_s=args.phase_s, fps=args.fps, delay_ms=args.delay_ms,
                            loss=args.loss) for _ in range(args.trials)]
     m = machine()
-    print(f"`python benchmarks/netns_fleet.py {' '.join(argv or sys.argv[1:])}`"
-          .replace(" `", "`"))
-    print(f"{time.strftime('%Y-%m-%d')}, {m['cpu']} ({m['nproc']} cores), {m['software']}; "
-          f"{args.trials} trials, 6 streams at {args.fps:g} fps, phases of {args.phase_s:g} s, "
-          f"slow = {args.delay_ms:g} ms each way and {100 * args.loss:g} % loss each way\n")
+    header("netns_fleet.py", argv, m, (
+        f"{args.trials} trials, 6 streams at {args.fps:g} fps, phases of {args.phase_s:g} s, "
+        f"slow = {args.delay_ms:g} ms each way and {100 * args.loss:g} % loss each way"))
 
     print("| phase | frames answered | answered twice | latency p50 (ms) "
           "| longest silence of a stream (s) | station relinked after (s) |")

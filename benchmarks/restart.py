@@ -23,12 +23,11 @@ import time
 from pathlib import Path
 from typing import Any
 
-from _common import parser, spread, write_trials  # beside this script
+from _common import parser, report, spread  # beside this script
 
 from arcf.client import TrackingClient
 from arcf.eval import load_dataset
 from arcf.loadtools.procs import ServiceProcess, free_port
-from arcf.loadtools.system import machine
 from arcf.loadtools.waiting import wait_until
 
 SIGNALS = {"term": signal.SIGTERM, "kill": signal.SIGKILL}
@@ -113,25 +112,23 @@ def main(argv: list[str] | None = None) -> int:
     hows = [h for h in args.signals.split(",") if h]
     trials = [trial(sequence, how, args.preset, args.fps, args.warm_s, args.down_s)
               for how in hows for _ in range(args.trials)]
-    m = machine()
-    print(f"`python benchmarks/restart.py {' '.join(argv or sys.argv[1:])}`".replace(" `", "`"))
-    print(f"{time.strftime('%Y-%m-%d')}, {m['cpu']} ({m['nproc']} cores), {m['software']}; "
-          f"{args.trials} trials per signal, {args.preset} on {args.sequence} at "
-          f"{args.fps:g} fps, the service away {args.down_s:g} s\n")
-    print("| signal | ready line | first `resumed` result | first `tracking` result | "
-          "frames unanswered |")
-    print("| --- | --- | --- | --- | --- |")
+    rows = []
     for how in hows:
         mine = [t for t in trials if t["signal"] == how]
 
         def ms(key: str, rows: list[dict[str, Any]] = mine) -> str:
             return spread([1e3 * t[key] for t in rows if t[key] is not None], unit=" ms")
 
-        print(f"| SIG{how.upper()} | {ms('ready_s')} | {ms('resumed_s')} | "
-              f"{ms('tracking_s')} | {spread([t['frames_unanswered'] for t in mine])} |")
-    print("\nTimes from the new process's start. Unanswered: the frames sent while the "
-          "service was away or starting.")
-    write_trials(args.json, m, trials)
+        rows.append([f"SIG{how.upper()}", ms("ready_s"), ms("resumed_s"), ms("tracking_s"),
+                     spread([t["frames_unanswered"] for t in mine])])
+    report("restart.py", argv,
+           f"{args.trials} trials per signal, {args.preset} on {args.sequence} at "
+           f"{args.fps:g} fps, the service away {args.down_s:g} s",
+           ["signal", "ready line", "first `resumed` result", "first `tracking` result",
+            "frames unanswered"], rows,
+           "Times from the new process's start. Unanswered: the frames sent while the "
+           "service was away or starting.",
+           args.json, trials)
     return 0
 
 
