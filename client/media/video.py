@@ -279,19 +279,21 @@ class StreamDecoder:
         if self._ctx is None and not keyframe:
             self._count(Outcome.WAITING.value)
             return Decoded(Outcome.WAITING, reason="waiting for a keyframe")
-        if keyframe:  # decodable on its own: with the parameter sets it came without
+        whole = data  # a keyframe with the parameter sets it came without: decodable alone
+        if keyframe:
             present = {kind for kind, _ in units}
-            missing = [u for k, u in sorted(self._params.items()) if k not in present]
-            data = b"".join(missing) + data
+            whole = b"".join(u for k, u in sorted(self._params.items())
+                             if k not in present) + data
         if self._ctx is None:
+            data = whole  # a new chain: the decoder has no parameter sets of its own yet
             self._ctx = cast(av.VideoCodecContext, av.CodecContext.create(self.codec, "r"))
             self._ctx.thread_type = "NONE"
             # FFmpeg refuses a larger picture before allocating it: a parameter set declaring
             # a huge size (a decoding bomb) costs nothing
             self._ctx.options = {"max_pixels": str(self.max_pixels)}
-        if self.group.max_units > 0:
+        if self.group.max_units > 0:  # kept decodable on its own, for a replay
             if keyframe:
-                self.group.start(Unit(seq, data, tag))
+                self.group.start(Unit(seq, whole, tag))
             else:
                 self.group.add(Unit(seq, data, tag))
         failed: Exception | None = None
