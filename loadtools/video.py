@@ -14,6 +14,7 @@ import numpy as np
 
 from arcf.client.media.convert import picture_bgr
 from arcf.client.media.encodings import codec_of
+from arcf.client.media.video import padded_packet
 
 
 def encode_video(images: Iterable[np.ndarray], codec: str = "h264", fps: int = 30,
@@ -54,4 +55,4 @@ def decode_video(units: Iterable[bytes], codec: str = "h264") -> list[np.ndarray
     """Every picture of a stream of access units, by one plain FFmpeg decoder, as BGR
     converted as a worker converts it (``picture_bgr``)."""
     dec = cast(av.VideoCodecContext, av.CodecContext.create(codec_of(codec).decoder_name, "r"))
-    return [picture_bgr(f) for u in units for f in dec.decode(av.Packet(u))]
+    return [picture_bgr(f) for u in units for f in dec.decode(padded_packet(u))]

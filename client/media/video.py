@@ -67,6 +67,17 @@ _CONCEALED = "concealing"
 MAX_DEFERRED_UNITS = 1000
 
 
+def padded_packet(data: bytes) -> av.Packet:
+    """``data`` as a packet FFmpeg may read past: its decoders read up to
+    ``AV_INPUT_BUFFER_PADDING_SIZE`` bytes beyond a packet's end, and PyAV's ``Packet(bytes)``
+    hands FFmpeg the bytes object itself, with nothing after it (a truncated keyframe then
+    reads past the object: under AddressSanitizer, into an unmapped page). ``Packet(size)``
+    allocates with FFmpeg's zeroed padding."""
+    packet = av.Packet(len(data))
+    memoryview(packet)[:] = data
+    return packet
+
+
 class Outcome(str, Enum):
     """What one access unit gave."""
 
@@ -280,7 +291,7 @@ class StreamDecoder:
             self._count(Outcome.WAITING.value)
             return Decoded(Outcome.WAITING, reason="waiting for a keyframe")
         whole = data  # a keyframe with the parameter sets it came without: decodable alone
-        if keyframe:
+        if keyframe and (self._ctx is None or self.group.max_units > 0):
             present = {kind for kind, _ in units}
             whole = b"".join(u for k, u in sorted(self._params.items())
                              if k not in present) + data
@@ -300,7 +311,7 @@ class StreamDecoder:
         frames: list[av.VideoFrame] = []
         with av.logging.Capture(local=False) as logs:
             try:
-                packet = av.Packet(data)
+                packet = padded_packet(data)
                 packet.pts = seq  # comes back on the picture: which unit it is
                 frames = self._ctx.decode(packet)
             except (av.FFmpegError, ValueError) as exc:
@@ -392,7 +403,7 @@ class PictureSize:
         ctx.options = {"max_pixels": str(self.max_pixels)}
         with av.logging.Capture(local=True):  # a broken keyframe says so by giving nothing
             try:
-                frames = ctx.decode(av.Packet(b"".join(key) + keyframe))
+                frames = ctx.decode(padded_packet(b"".join(key) + keyframe))
                 frames += ctx.decode(None)
                 if frames:
                     size = (frames[0].width, frames[0].height)
