@@ -215,7 +215,8 @@ class Inbox:
         # queue, nor memory (a frame message is its payload plus a few dozen bytes)
         if len(sample.payload) > self.max_payload + 1024:
             self._refuse(ErrorCode.OVERSIZED_PAYLOAD)
-        elif not self._history_sample() and not self.bucket.take(time.monotonic()):
+        elif not (self.history > 0 and self.limit == self.video_queue
+                  and self._history_sample()) and not self.bucket.take(time.monotonic()):
             self._refuse(ErrorCode.RATE_LIMITED)
         else:
             data = sample.payload.to_bytes()
@@ -228,7 +229,8 @@ class Inbox:
                 self.frames.append((data, time.time_ns(), source, seq))
                 self.arrived = time.monotonic()
                 self._bytes += len(data)
-                while len(self.frames) > 1 and (len(self.frames) > self.limit + self.room
+                room = self.room if self.limit == self.video_queue else 0
+                while len(self.frames) > 1 and (len(self.frames) > self.limit + room
                                                 or self._bytes > self.max_bytes):
                     # the oldest goes: the gap shows in the numbers, and is counted
                     self._bytes -= len(self.frames.popleft()[0])
