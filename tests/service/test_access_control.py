@@ -21,7 +21,7 @@ from arcf.data import data_root
 from arcf.eval import load_dataset
 from arcf.loadtools.procs import ServiceProcess, free_port
 from arcf.loadtools.video import encode_video
-from arcf.loadtools.waiting import next_result, wait_for_peers
+from arcf.loadtools.waiting import next_result, wait_for_peers, wait_until
 from arcf.schemas import Status, StatusRequest, decode, encode
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -171,9 +171,15 @@ def test_only_authorised_stations_track(tmp_path: Path) -> None:
                 first = next_result(video, timeout=30)
                 assert (first.frame_seq, first.status.value) == (5, "initialized")
                 assert next_result(video, 5, timeout=30).frame_seq == 6
-                # the station's liveliness token passes the rules: past the grace period
-                # (1 s here) its session still tracks (the window a refused token would end it)
-                time.sleep(1.5)
+                # the station's liveliness token passes the rules: a service instance sees it
+                # (a refused one would end the station's sessions after the 1 s grace)
+                watcher = zenoh.open(zenoh.Config.from_file(
+                    str(peer_config(tmp_path, "arcf-service-1", endpoint))))
+                token = good.keys.client_token(good.client_id)
+                wait_until(lambda: token in {str(r.ok.key_expr) for r in watcher.liveliness().get(
+                    good.keys.all_client_tokens(), timeout=2.0) if r.ok is not None},
+                           timeout=30, what="the station's token at a service instance")
+                watcher.close()
                 good.publish_frame("cam-video", data=units[7], encoding="h264", seq=7)
                 last = next_result(video, 6, timeout=30)
                 assert (last.frame_seq, last.status.value) == (7, "tracking")
