@@ -179,9 +179,10 @@ class Inbox:
         #: frames refused here so far, by code (the loop reports them to the stream)
         self.refused: dict[ErrorCode, int] = {ErrorCode.RATE_LIMITED: 0,
                                               ErrorCode.OVERSIZED_PAYLOAD: 0}
-        #: a station's recent history, asked for at subscription (up to ``history`` samples):
-        #: it comes at once, so within ``HISTORY_WINDOW_S`` that many samples pass the rate
-        #: limit and get places in the queue beyond ``limit`` (given back as they are taken)
+        #: a station's recent video, asked for at subscription (up to ``history`` units): it
+        #: comes at once, so within ``HISTORY_WINDOW_S`` that many video units pass the rate
+        #: limit and get places in the queue beyond ``limit`` (given back as they are taken);
+        #: an image stream meets the limit from its first frame
         self.history = history
         self.history_until = time.monotonic() + HISTORY_WINDOW_S
         self.room = history
@@ -215,8 +216,8 @@ class Inbox:
         # queue, nor memory (a frame message is its payload plus a few dozen bytes)
         if len(sample.payload) > self.max_payload + 1024:
             self._refuse(ErrorCode.OVERSIZED_PAYLOAD)
-        elif not (self.history > 0 and self.limit == self.video_queue
-                  and self._history_sample()) and not self.bucket.take(time.monotonic()):
+        elif not (self.limit == self.video_queue and self._history_sample()) \
+                and not self.bucket.take(time.monotonic()):
             self._refuse(ErrorCode.RATE_LIMITED)
         else:
             data = sample.payload.to_bytes()

@@ -19,8 +19,8 @@ state for one stream (PyAV, which ships FFmpeg in its wheels):
   ``MAX_NAL_UNITS`` start codes is refused (FFmpeg keeps state per NAL unit: 2 MiB of bare
   start codes took a decoder to 1.1 GB), and a parameter set declaring more than
   ``max_pixels`` is refused by FFmpeg before a picture is allocated (cause ``oversized``);
-* it remembers the units of the current group of pictures (from its keyframe on, bounded in
-  units and bytes), so that a picture of that group can be decoded again
+* it remembers the units of its last two groups of pictures (from their keyframes on,
+  bounded in units and bytes), so that a picture of either can be decoded again
   (:meth:`StreamDecoder.replay`): a box drawn on a picture the decoder has passed is applied
   to that very picture;
 * a picture is converted to BGR only when asked for (``Decoded.pixels``), and only where
@@ -214,6 +214,7 @@ class StreamDecoder:
     def _resync(self, cause: str, reason: str) -> Decoded:
         self._ctx = None
         self.group.forget()
+        self._deferred, self._deferred_bytes = [], 0
         self._count(Outcome.RESYNC.value)
         self._count(f"resync_{cause}")
         return Decoded(Outcome.RESYNC, reason=reason, cause=cause)
@@ -237,23 +238,28 @@ class StreamDecoder:
                 self._decode(unit.seq, unit.data, unit.tag)
         return self._decode(seq, data, tag)
 
+    def _scan(self, data: bytes) -> set[int] | Decoded:
+        """The NAL unit types of an access unit (its parameter sets kept); the resync if it
+        is no access unit at all."""
+        try:
+            units = nal_units(data, self.codec)
+        except ValueError as exc:
+            return self._resync("corrupt", f"not a camera's access unit: {exc}")
+        if not units:
+            return self._resync("corrupt", "not an Annex B access unit (no start code)")
+        for kind, unit in units:
+            if kind in PARAMETER_TYPES[self.codec]:
+                self._params[kind] = unit
+        return {kind for kind, _ in units}
+
     def _defer(self, seq: int, data: bytes, tag: Any) -> Decoded:
         """Keep a unit before the wanted one (see :meth:`decode`), without decoding it."""
         gap = self._next_seq is not None and seq != self._next_seq
         self._next_seq = seq + 1
-        try:
-            units = nal_units(data, self.codec)
-        except ValueError as exc:
-            units, why = [], f"not a camera's access unit: {exc}"
-        else:
-            why = "not an Annex B access unit (no start code)"
-        if not units:
-            self._deferred, self._deferred_bytes = [], 0
-            return self._resync("corrupt", why)
-        for kind, unit in units:
-            if kind in PARAMETER_TYPES[self.codec]:
-                self._params[kind] = unit
-        if any(kind in KEYFRAME_TYPES[self.codec] for kind, _ in units):
+        kinds = self._scan(data)
+        if isinstance(kinds, Decoded):
+            return kinds
+        if kinds & KEYFRAME_TYPES[self.codec]:
             self._deferred, self._deferred_bytes = [], 0
         elif gap or not self._deferred:  # a broken chain, or none yet: nothing to keep
             self._deferred, self._deferred_bytes = [], 0
@@ -269,16 +275,10 @@ class StreamDecoder:
     def _decode(self, seq: int, data: bytes, tag: Any) -> Decoded:
         gap = self._next_seq is not None and seq != self._next_seq
         expected, self._next_seq = self._next_seq, seq + 1
-        try:
-            units = nal_units(data, self.codec)
-        except ValueError as exc:
-            return self._resync("corrupt", f"not a camera's access unit: {exc}")
-        if not units:
-            return self._resync("corrupt", "not an Annex B access unit (no start code)")
-        for kind, unit in units:
-            if kind in PARAMETER_TYPES[self.codec]:
-                self._params[kind] = unit
-        keyframe = any(kind in KEYFRAME_TYPES[self.codec] for kind, _ in units)
+        kinds = self._scan(data)
+        if isinstance(kinds, Decoded):
+            return kinds
+        keyframe = bool(kinds & KEYFRAME_TYPES[self.codec])
         resynced = None
         if gap and self._ctx is not None:
             if not keyframe:
@@ -292,9 +292,8 @@ class StreamDecoder:
             return Decoded(Outcome.WAITING, reason="waiting for a keyframe")
         whole = data  # a keyframe with the parameter sets it came without: decodable alone
         if keyframe and (self._ctx is None or self.group.max_units > 0):
-            present = {kind for kind, _ in units}
             whole = b"".join(u for k, u in sorted(self._params.items())
-                             if k not in present) + data
+                             if k not in kinds) + data
         if self._ctx is None:
             data = whole  # a new chain: the decoder has no parameter sets of its own yet
             self._ctx = cast(av.VideoCodecContext, av.CodecContext.create(self.codec, "r"))
@@ -338,7 +337,6 @@ class StreamDecoder:
         self._count(Outcome.FRAME.value)
         return Decoded(Outcome.FRAME, picture=frame,
                        seq=seq if frame.pts is None else int(frame.pts), resynced=resynced)
-
 
     def replay(self, first: int, last: int) -> Iterator[tuple[Decoded, Any]]:
         """The pictures of units ``first`` to ``last`` decoded again from the kept group (a
