@@ -22,8 +22,10 @@ ArduPilot's convention: UDP port 5600, no SDP), MPEG-TS over UDP, or a V4L2 devi
   unit (so network jitter does not move it), re-laid when the two drift more than a second
   apart (a sender restarted, a file looped).
 * **A source that stops is waited for**, never fatal: a read that sees nothing for
-  ``read_timeout_s`` closes the source and opens it again, every ``retry_s`` at first, then
-  less often (at most ``retry_max_s``), with a log line when it is lost and when it is back.
+  ``read_timeout_s`` closes the source and opens it again, with a log line when it is lost
+  and when it is back. A source connected to (RTSP) is tried every ``retry_s`` at first, then
+  less often (at most ``retry_max_s``); one that listens (RTP, MPEG-TS over UDP) is listened
+  to again ``retry_s`` after each opening that heard nothing, since that opening waited.
   A file plays once (or ``loop``) at its own pace (or as fast as the link takes it).
 """
 
@@ -86,6 +88,12 @@ class Source:
     @property
     def live(self) -> bool:
         return self.kind != "file"
+
+    @property
+    def listens(self) -> bool:
+        """Video is sent to a port here (RTP, MPEG-TS over UDP), nothing is connected to:
+        each opening waits for the camera, so a failed one is retried without backing off."""
+        return self.kind in ("rtp", "mpegts")
 
     def __str__(self) -> str:
         return self.url
@@ -150,8 +158,10 @@ def parse_source(text: str, *, rtsp_transport: str = "tcp", rtp_codec: str = "h2
 #: how far past the stream's last tracked frame a restarted ingest numbers on: the frames
 #: its last run sent that were still in flight (within the service's allowed jump, 30)
 RESUME_MARGIN = 20
-#: a live source is probed for a second, not FFmpeg's five: its first picture waits for it
-_LIVE_PROBE = {"analyzeduration": "1000000"}
+#: a live source is probed until its parameters are known (its first keyframe), for a second
+#: at most, not FFmpeg's five, and not for 20 frames to guess a frame rate (every unit carries
+#: its presentation time): its first picture, and a returning camera's, waits for the probe
+_LIVE_PROBE = {"analyzeduration": "1000000", "fpsprobesize": "0"}
 #: what an SDP may open: the SDP itself (from a file) and the RTP/UDP it names; RTP packets
 #: reordered on the way are put back in order within 64
 _SDP_OPTIONS = {"protocol_whitelist": "file,udp,rtp", "reorder_queue_size": "64",
@@ -207,7 +217,9 @@ class Ingest:
     ``read_timeout_s``: a live source with nothing to read for this long is closed and
     opened again. ``retry_s`` / ``retry_max_s``: the wait before reopening a source that
     failed, doubled at each failure in a row up to the maximum (1 s: a camera that comes
-    back is read again within a second; an attempt costs a connection or a socket bind).
+    back is read again within a second; an attempt costs a connection). A source that
+    :attr:`~Source.listens` waits ``retry_s`` only: its opening already waited for the camera
+    (``open_timeout_s``), and its port is deaf between two openings.
     """
 
     def __init__(self, client: TrackingClient, source: Source, stream_id: str, *,
@@ -297,7 +309,7 @@ class Ingest:
                 log.error("ingest %s: %s: %s", self.stream_id, self.source, why)
                 return
             self._hole = True  # whatever comes next is a new chain of pictures
-            if self.counts["published"] > before:
+            if self.counts["published"] > before or self.source.listens:
                 failures = 0
             wait = min(self.retry_s * 2 ** failures, self.retry_max_s)
             failures += 1
@@ -399,15 +411,24 @@ class Ingest:
         demuxer, or read while FFmpeg reported RTP packets missing. A loss shows in the unit
         being read or the next (the parser holds one), so both are taken as damaged; a loss
         while the source was being probed (its first packets are read ahead, then handed
-        out) could be anywhere before the second keyframe."""
+        out) could be anywhere before the second keyframe.
+
+        A live source silent for ``read_timeout_s`` ends the reading. PyAV's timeout stops
+        FFmpeg's read, but H.264 and H.265 go through FFmpeg's parser, which holds the last
+        unit until the next one begins: the stopped read hands that unit out instead of
+        failing, and only the read after it fails, one more timeout later. A read that took
+        the whole timeout therefore ends the reading after its unit."""
         demux = container.demux(stream)
         damaged_next = False
         suspect_keyframes = 2 if lost_in_probe else 0
         while True:
+            began = time.monotonic()
             with av.logging.Capture(local=True) as logs:
                 packet = next(demux, None)
             if packet is None:
                 return
+            timed_out = (self.source.live
+                         and time.monotonic() - began >= self.read_timeout_s)
             lost = self._lost(logs)
             if packet.size == 0:
                 continue
@@ -416,6 +437,9 @@ class Ingest:
             yield packet, (packet.is_corrupt or damaged_next or lost > 0
                            or suspect_keyframes > 0)
             damaged_next = lost > 0
+            if timed_out:
+                self.counts["read_timeouts"] += 1
+                return
 
     def _av_units(self) -> Iterator[_Unit]:
         container, lost_in_probe = self._open()

@@ -17,12 +17,15 @@ import subprocess
 import sys
 import threading
 from pathlib import Path
+from types import SimpleNamespace
+from typing import cast
 
 import numpy as np
 import pytest
 
 pytest.importorskip("zenoh")
 
+from arcf.adapters import ingest as ingest_module
 from arcf.adapters.ingest import CaptureClock, Ingest, parse_source, rtp_sdp
 from arcf.client import TrackingClient
 from arcf.client.media.images import decode_compressed
@@ -43,6 +46,27 @@ N, GOP, FPS = 30, 10, 30
 
 
 # ---------------------------------------------------------------------------- pure parts
+@pytest.mark.parametrize("source, read", [("rtp://127.0.0.1:5600", 3), ("flight.mp4", 4)])
+def test_a_silent_live_source_ends_its_reading_after_one_timeout(monkeypatch, source: str,
+                                                                 read: int) -> None:
+    """FFmpeg's parser holds a live H.264 source's last unit: the read PyAV's timeout stops
+    hands that unit out instead of failing, and the next read would wait a whole timeout
+    more. The reading ends after the unit of a read that took the whole timeout; a file's
+    slow read is only slow."""
+    clock = [0.0]
+    monkeypatch.setattr(ingest_module, "time", SimpleNamespace(monotonic=lambda: clock[0]))
+
+    def demux(_stream: object):
+        for took in (0.03, 0.03, 3.0, 0.03):  # the third read is the one the timeout stops
+            clock[0] += took
+            yield SimpleNamespace(size=100, is_keyframe=False, is_corrupt=False)
+
+    ingest = Ingest(cast(TrackingClient, None), parse_source(source), "cam", read_timeout_s=3.0)
+    packets = list(ingest._packets(SimpleNamespace(demux=demux), None, 0))
+    assert len(packets) == read  # the stopped read's unit is handed out, none after it
+    assert ingest.counts["read_timeouts"] == 4 - read
+
+
 def test_sources_from_what_an_operator_types() -> None:
     rtsp = parse_source("rtsp://10.0.0.2:8554/main")
     assert (rtsp.kind, rtsp.options["rtsp_transport"], rtsp.live) == ("rtsp", "tcp", True)
