@@ -315,8 +315,10 @@ class Ingest:
             failures += 1
             if lost_at is None or self.counts["published"] > before:
                 lost_at = time.monotonic()
-                log.warning("ingest %s: %s lost (%s); opening it again every %.1f s at most",
-                            self.stream_id, self.source, why, self.retry_max_s)
+                again = ("listening for it again" if self.source.listens else
+                         f"opening it again every {self.retry_max_s:.1f} s at most")
+                log.warning("ingest %s: %s lost (%s); %s", self.stream_id, self.source, why,
+                            again)
             self._stop.wait(wait)
             self.counts["reopened"] += 1
 
