@@ -474,6 +474,7 @@ TUNABLE: Mapping[str, Tunable] = MappingProxyType({
     "state.lost_below": Tunable(float, 0.0, 1.0),
     "state.lost_after": Tunable(int, 1, 10_000),
     "state.resume_above": Tunable(float, 0.0, 1.0),
+    "state.resume_after": Tunable(int, 0, 10_000),
     "state.update_policy": Tunable(str, choices=("always", "tracking")),
     "state.reacquire": Tunable(bool),
     "state.probes": Tunable(int, 1, 16),

@@ -25,6 +25,11 @@ hysteresis makes the per-frame confidence a **state**:
 * ``lost``: it fell below ``lost_below``, or stayed below ``coast_below`` for ``lost_after``
   frames.
 
+A coasting or lost track is ``tracking`` again where its box is when its strength comes back
+above ``resume_above``, or stays at or above ``coast_below`` for ``resume_after`` frames in a
+row: a filter that learns nothing while not tracking follows a target whose look changes with
+a response that never regains its old level, steady where a hidden or lost target's drops.
+
 With ``update_policy="tracking"`` the tracker learns only while ``tracking`` (no appearance
 update from an occluder or the background); ``"always"`` is the paper's and the release's
 behaviour. With ``reacquire`` on, nothing is learnt while the track is not ``tracking``
@@ -98,6 +103,9 @@ class StateParams:
     #: Strength from which a coasting or lost track is tracking again where its box is
     #: (hysteresis; a choice).
     resume_above: float = 0.6
+    #: Frames in a row at or above ``coast_below`` after which a coasting or lost track is
+    #: tracking again where its box is (0: only ``resume_above`` resumes).
+    resume_after: int = 0
     #: Strength a place found by the search needs, on two frames in a row, for the box to
     #: jump there (re-acquisition; a choice: as for resuming in place. 0.4 and 0.45 found no
     #: more targets on the occlusion clips, docs/track-state.md).
@@ -130,6 +138,8 @@ class StateParams:
             problems.append("state.bias must be finite")
         if self.reference_frames < 1 or self.lost_after < 1:
             problems.append("state.reference_frames and state.lost_after must be >= 1")
+        if self.resume_after < 0:
+            problems.append("state.resume_after must be >= 0")
         if not 0 <= self.lost_below <= self.coast_below <= self.resume_above <= 1:
             problems.append("state thresholds must satisfy 0 <= lost_below <= coast_below "
                             "<= resume_above <= 1")
@@ -180,6 +190,8 @@ class TrackMonitor:
     params: StateParams
     state: TrackState = TrackState.TRACKING
     coasting_for: int = 0
+    #: frames in a row, while not tracking, at or above ``coast_below``
+    seen_for: int = 0
     #: (psr, peak, aberrance) of the recent trusted frames, oldest first
     _refs: deque[tuple[float, float, float]] = field(default_factory=deque)
     _since_reset: int = 0
@@ -188,7 +200,7 @@ class TrackMonitor:
     def reset(self) -> Assessment:
         """A new box was given: the track starts ``tracking``, and the next frames set the
         references."""
-        self.state, self.coasting_for = TrackState.TRACKING, 0
+        self.state, self.coasting_for, self.seen_for = TrackState.TRACKING, 0, 0
         self._refs = deque(maxlen=self.params.reference_frames)
         self._medians = None
         self._since_reset = 0
@@ -238,8 +250,10 @@ class TrackMonitor:
                 self.state = TrackState.LOST
             elif strength < p.coast_below:
                 self.state, self.coasting_for = TrackState.COASTING, 1
-        elif strength >= p.resume_above:
-            self.state, self.coasting_for = TrackState.TRACKING, 0
+            return self.state
+        self.seen_for = self.seen_for + 1 if strength >= p.coast_below else 0
+        if strength >= p.resume_above or 0 < p.resume_after <= self.seen_for:
+            self.resume()
         elif self.state is TrackState.COASTING:
             self.coasting_for += 1
             if strength < p.lost_below or self.coasting_for >= p.lost_after:
@@ -253,8 +267,9 @@ class TrackMonitor:
         return math.exp(ln_s) if math.isfinite(ln_s) else 0.0
 
     def resume(self) -> None:
-        """The target was found again away from the box: back to ``tracking``."""
-        self.state, self.coasting_for = TrackState.TRACKING, 0
+        """The target is seen again (where the box is, or found away from it): back to
+        ``tracking``."""
+        self.state, self.coasting_for, self.seen_for = TrackState.TRACKING, 0, 0
 
     def observe(self, peak: float, psr: float, aberrance: float) -> Assessment:
         """One frame's signals: its strength and the state it leads to. A frame that stays

@@ -4,6 +4,7 @@ target."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -64,6 +65,24 @@ def test_the_state_machine_coasts_loses_and_resumes_with_hysteresis() -> None:
     assert nothing.state is TrackState.LOST
     assert m.confidence(5.0, nothing.ln_strength, nothing.ln_aberrance, nothing.state, 0.5,
                         3)[0] == 0.0
+
+
+def test_a_steady_weak_response_resumes_after_resume_after_frames() -> None:
+    """A target seen steadily at or above ``coast_below`` (a filter that learnt nothing
+    while not tracking, on a target whose look changed) is tracking again after
+    ``resume_after`` frames in a row, from coasting or lost; a frame below breaks the run."""
+    params = StateParams(coast_below=0.5, lost_below=0.2, lost_after=2, resume_above=0.7,
+                         resume_after=3)
+    m = TrackMonitor(params)
+    m.reset()
+    strengths = (0.4, 0.55, 0.55, 0.6,  # coasting, lost (lost_after), the third steady: back
+                 0.4, 0.1, 0.6, 0.45, 0.6, 0.6, 0.6)  # lost at once; a run broken, then whole
+    assert [m.step(s).value for s in strengths] == [
+        "coasting", "lost", "lost", "tracking",
+        "coasting", "lost", "lost", "lost", "lost", "lost", "tracking"]
+    off = TrackMonitor(dataclasses.replace(params, resume_after=0))
+    off.reset()
+    assert [off.step(s).value for s in (0.4, 0.6, 0.6, 0.6, 0.6, 0.6, 0.6)][-1] == "lost"
 
 
 def test_the_confidence_is_the_fitted_model_of_the_features() -> None:
