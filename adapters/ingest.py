@@ -158,6 +158,9 @@ def parse_source(text: str, *, rtsp_transport: str = "tcp", rtp_codec: str = "h2
 #: how far past the stream's last tracked frame a restarted ingest numbers on: the frames
 #: its last run sent that were still in flight (within the service's allowed jump, 30)
 RESUME_MARGIN = 20
+#: how long, and how often, a restarted ingest asks again for the last frame of a session
+#: its worker has not reported yet (workers report once a second; later when busy)
+RESUME_ASK_S, RESUME_ASK_EVERY_S = 5.0, 0.25
 #: a live source is probed until its parameters are known (its first keyframe), for a second
 #: at most, not FFmpeg's five, and not for 20 frames to guess a frame rate (every unit carries
 #: its presentation time): its first picture, and a returning camera's, waits for the probe
@@ -327,14 +330,24 @@ class Ingest:
         results), not from 0: a restarted ingest under a running session would otherwise
         send numbers the stream has passed, refused until its numbering is followed anew,
         and a box a pilot drew on the last frames would wait for a number not yet reached.
-        No answer, or no session: from 0 (then nothing waits for a number)."""
-        try:
-            sessions = self.client.status(stream_id=self.stream_id).sessions
-        except Exception as exc:  # no answer in time: the service follows a restart anyway
-            log.info("ingest %s: numbering from 0 (no status from the service: %s)",
-                     self.stream_id, exc)
-            return
-        last = max((s.last_seq for s in sessions if s.last_seq is not None), default=None)
+        No answer, or no session: from 0 (then nothing waits for a number).
+
+        Workers report their sessions once a second: a session that has not been reported
+        yet (``waiting``, no last frame) is asked about again for ``RESUME_ASK_S`` at most,
+        so that an ingest restarted at once still finds the frame its stream is at."""
+        deadline = time.monotonic() + RESUME_ASK_S
+        while True:
+            try:
+                sessions = self.client.status(stream_id=self.stream_id).sessions
+            except Exception as exc:  # no answer in time: the service follows a restart anyway
+                log.info("ingest %s: numbering from 0 (no status from the service: %s)",
+                         self.stream_id, exc)
+                return
+            last = max((s.last_seq for s in sessions if s.last_seq is not None), default=None)
+            unreported = any(s.last_seq is None and s.state == "waiting" for s in sessions)
+            if (last is not None or not unreported or time.monotonic() >= deadline
+                    or self._stop.wait(RESUME_ASK_EVERY_S)):
+                break
         if last is not None and last + RESUME_MARGIN > self._seq:
             # beyond the frames the last run sent that no result had answered yet; a jump
             # the service takes at once (it allows 30 frames more than a stream's rate could
