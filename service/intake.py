@@ -155,8 +155,10 @@ class Inbox:
         #: silent drops would escape the byte count)
         self.frames: deque[tuple[bytes, int, str, int | None]] = deque()
         self.image_queue, self.video_queue = image_queue, video_queue
-        #: entries kept: ``image_queue`` until the stream turns out to be video
+        #: entries kept: ``image_queue`` until the stream turns out to be video (:attr:`is_video`)
         self.limit = image_queue
+        #: the stream carries video units (a group of pictures must reach the decoder whole)
+        self.is_video = False
         self.video_seq = 0
         #: monotonic time of the last sample queued (never: 0): the stream delivers, so its
         #: sessions are not stale even while the loop is busy elsewhere (written by Zenoh's
@@ -203,7 +205,7 @@ class Inbox:
             elif source == "frame":
                 self._take(sample, source, None)
             else:  # numbered on arrival: a unit lost on the way shows as a gap
-                self.limit = self.video_queue
+                self.carries(video=True)
                 seq, self.video_seq = self.video_seq, self.video_seq + 1
                 self._take(sample, source, seq)
         finally:
@@ -216,27 +218,31 @@ class Inbox:
         # queue, nor memory (a frame message is its payload plus a few dozen bytes)
         if len(sample.payload) > self.max_payload + 1024:
             self._refuse(ErrorCode.OVERSIZED_PAYLOAD)
-        elif not (self.limit == self.video_queue and self._history_sample()) \
+        elif not (self.is_video and self._history_sample()) \
                 and not self.bucket.take(time.monotonic()):
             self._refuse(ErrorCode.RATE_LIMITED)
         else:
             data = sample.payload.to_bytes()
-            if source == "frame" and self.limit != self.video_queue and _VIDEO_MARK.search(
-                    data, 0, _HEAD):
+            if source == "frame" and not self.is_video and _VIDEO_MARK.search(data, 0, _HEAD):
                 # a video unit: the whole group of pictures must be kept from the first one
                 # (the loop confirms it when it decodes the message, whatever its field order)
-                self.limit = self.video_queue
+                self.carries(video=True)
             with self._lock:
                 self.frames.append((data, time.time_ns(), source, seq))
                 self.arrived = time.monotonic()
                 self._bytes += len(data)
-                room = self.room if self.limit == self.video_queue else 0
+                room = self.room if self.is_video else 0
                 while len(self.frames) > 1 and (len(self.frames) > self.limit + room
                                                 or self._bytes > self.max_bytes):
                     # the oldest goes: the gap shows in the numbers, and is counted
                     self._bytes -= len(self.frames.popleft()[0])
                     self.trimmed += 1
             self.wake.set()
+
+    def carries(self, *, video: bool) -> None:
+        """What the stream turned out to carry: video units or images (its queue's bound)."""
+        self.is_video = video
+        self.limit = self.video_queue if video else self.image_queue
 
     def _history_sample(self) -> bool:
         """Whether a sample counts as the station's history (see ``history``)."""
@@ -255,7 +261,7 @@ class Inbox:
         with self._lock:
             if not self.frames:
                 return None
-            if self.max_age_ns and self.limit != self.video_queue:
+            if self.max_age_ns and not self.is_video:
                 oldest = time.time_ns() - self.max_age_ns
                 while len(self.frames) > 1 and self.frames[0][1] < oldest:
                     # the oldest goes, as when the queue is full: counted, a gap in the numbers

@@ -149,10 +149,11 @@ class FramePipeline:
         if frame is None:
             return None
         if frame.encoding.is_video:
-            stream.inbox.limit = stream.inbox.video_queue
+            stream.inbox.carries(video=True)
             return self._decode_unit(stream, frame.seq, frame.capture_ts_ns, received_ns,
                                      codec_of(frame.encoding), frame.payload)
-        stream.decoder, stream.inbox.limit = None, stream.inbox.image_queue
+        stream.decoder = None
+        stream.inbox.carries(video=False)
         stream.unit_times.clear()
         t0, c0 = time.perf_counter(), time.thread_time()
         image, problem = decode_image(frame, self.settings.max_pixels, read_region(stream))
